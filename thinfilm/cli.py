@@ -1,0 +1,113 @@
+"""The ``thinfilm`` command line.
+
+Each subcommand's arguments are declared here (the contract of ``DESIGN.md``); the work
+is done by a ``cli_main(args)`` function in the module that owns it, imported only when
+that subcommand runs so that ``thinfilm --help`` stays instant.
+
+Bad input raises :class:`thinfilm.errors.UserError`; it is printed as one line on stderr
+and the exit code is 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from . import __version__
+from .errors import UserError
+
+__all__ = ["main", "build_parser"]
+
+
+def _positive_int(text):
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {value}")
+    return value
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="thinfilm",
+        description="Spectral, polarized thin-film rendering, benchmark generation and reconstruction.",
+    )
+    p.add_argument("--version", action="version", version=f"thinfilm {__version__}")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+
+    r = sub.add_parser("render", help="render a Mitsuba scene (XML, TOML or JSON dict) with the thinfilm plugin")
+    r.add_argument("scene", help="Mitsuba scene: .xml, or a .toml/.json file holding a load_dict dictionary")
+    r.add_argument("--out", required=True, help="output image path stem; writes STEM.exr and STEM.png")
+    r.add_argument("--variant", default="llvm_ad_spectral_polarized", help="Mitsuba variant (default: %(default)s)")
+    r.add_argument("--spp", type=_positive_int, default=None, help="samples per pixel (overrides the scene)")
+    r.add_argument("--seed", type=int, default=0, help="sampler seed (default: %(default)s)")
+    r.set_defaults(target="thinfilm.render:cli_main")
+
+    g = sub.add_parser("generate", help="generate a benchmark dataset from a scene spec or preset")
+    g.add_argument("spec", metavar="SPEC.toml|PRESET")
+    g.add_argument("--out", required=True)
+    g.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a spec key, e.g. --set film.thickness.value=450 (repeatable)")
+    g.add_argument("--resolution", type=_positive_int, default=None)
+    g.add_argument("--seed", type=int, default=None)
+    g.set_defaults(target="thinfilm.generators.generate:cli_main")
+
+    rec = sub.add_parser("reconstruct", help="estimate normals, film index and thickness from a dataset")
+    rsub = rec.add_subparsers(dest="kind", metavar="KIND")
+    rsub.required = True
+    rgb = rsub.add_parser("rgb", help="from polarized RGB images (known film index)")
+    rgb.add_argument("dataset")
+    rgb.add_argument("--out", required=True)
+    rgb.add_argument("--film-ior", type=float, default=None)
+    rgb.add_argument("--substrate-ior", type=float, default=None)
+    rgb.add_argument("--thickness-range", type=float, nargs=2, metavar=("MIN", "MAX"), default=None)
+    rgb.add_argument("--method", default=None)
+    rgb.add_argument("--mask", default=None, help="optional mask image (non-zero on the object)")
+    rgb.set_defaults(target="thinfilm.reconstruction.rgb:cli_main")
+    sp = rsub.add_parser("spectral", help="from s-polarized hyperspectral images (film index estimated)")
+    sp.add_argument("dataset")
+    sp.add_argument("--out", required=True)
+    sp.add_argument("--substrate-ior", type=float, default=None)
+    sp.add_argument("--method", default=None)
+    sp.add_argument("--mask", default=None, help="optional mask image (non-zero on the object)")
+    sp.set_defaults(target="thinfilm.reconstruction.spectral:cli_main")
+
+    ev = sub.add_parser("evaluate", help="re-render an estimate and score it against the captures")
+    ev.add_argument("dataset")
+    ev.add_argument("estimate")
+    ev.add_argument("--out", required=True)
+    ev.set_defaults(target="thinfilm.evaluation:cli_main")
+
+    b = sub.add_parser("benchmark", help="every preset x every method, with a report")
+    b.add_argument("--quick", action="store_true", help="small images, under 10 minutes on 2 cores")
+    b.add_argument("--out", required=True)
+    b.set_defaults(target="thinfilm.benchmark:cli_main")
+    return p
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    module_name, func_name = args.target.split(":")
+    try:
+        module = importlib.import_module(module_name)
+    except ModuleNotFoundError as e:
+        if e.name and e.name.startswith("thinfilm"):
+            print(f"thinfilm: error: '{args.command}' is not available in this version", file=sys.stderr)
+            return 2
+        raise
+    try:
+        return int(getattr(module, func_name)(args) or 0)
+    except UserError as e:
+        print(f"thinfilm: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("thinfilm: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
