@@ -29,7 +29,15 @@ perpendicular to the plane of incidence, Mitsuba's layout) is::
      [0, 0, c, s],
      [0, 0, -s, c]]
 
-with ``a = (R_s + R_p)/2``, ``b = (R_s - R_p)/2`` and ``c + i s = r_s conj(r_p)``.
+with ``a = (R_s + R_p)/2``, ``b = (R_s - R_p)/2`` and ``c + i s = conj(r_s) r_p``.
+
+Phase convention: ``tmm`` (and this module) write waves as ``exp(i(kz - ωt))`` with
+absorbing indices ``n + ik``; Mitsuba's ``fresnel_polarized`` returns the complex
+conjugates of these amplitudes (for absorbing media; for lossless ones they are
+real and identical). The Mueller matrix above is therefore built from
+``conj(r_s) r_p``, which equals Mitsuba's ``a_s conj(a_p)``: with thickness 0 it is
+Mitsuba's ``mueller::specular_reflection`` entry for entry. Only the sign of the
+retardance entry ``s`` depends on this choice.
 
 References
 ----------
@@ -352,13 +360,14 @@ def mueller_entries(r_s, r_p):
     """The four distinct entries ``(a, b, c, s)`` of the reflection Mueller matrix.
 
     ``a = (|r_s|² + |r_p|²)/2``, ``b = (|r_s|² - |r_p|²)/2``,
-    ``c + i s = r_s · conj(r_p)`` (Mitsuba's ``mueller::specular_reflection`` layout).
+    ``c + i s = conj(r_s) · r_p`` for amplitudes in this module's (``tmm``'s) phase
+    convention, which is Mitsuba's ``a_s conj(a_p)`` (see the module docstring).
     Accepts NumPy complex arrays or :class:`Complex`.
     """
     r_s = Complex.of(r_s)
     r_p = Complex.of(r_p)
     Rs, Rp = r_s.abs2(), r_p.abs2()
-    x = r_s * r_p.conj()
+    x = r_s.conj() * r_p
     return 0.5 * (Rs + Rp), 0.5 * (Rs - Rp), x.re, x.im
 
 

@@ -78,7 +78,7 @@ def _fail(message: str):
 
 
 def _positive_float(props, name, default, allow_zero=False):
-    value = props.get(name, default) if props.has_property(name) else default
+    value = props.get(name, default) if name in props else default
     if not isinstance(value, numbers.Real):
         _fail(f"parameter '{name}' must be a number, got {type(value).__name__}")
     value = float(value)
@@ -101,7 +101,7 @@ class _ThinFilmMixin:
 
         # Thickness: number or texture.
         self.m_thickness_tex = None
-        if props.has_property("thickness") and isinstance(props.get("thickness"), mi.Texture):
+        if "thickness" in props and isinstance(props.get("thickness"), mi.Texture):
             self.m_thickness_tex = props.get("thickness")
             self.m_thickness = mi.Float(0.0)
         else:
@@ -110,7 +110,7 @@ class _ThinFilmMixin:
         # Film index: number, spectrum texture or material name.
         self.m_film_tex = None
         self.m_film_dispersion = None
-        raw = props.get("film_ior", 1.37) if props.has_property("film_ior") else 1.37
+        raw = props.get("film_ior", 1.37) if "film_ior" in props else 1.37
         if isinstance(raw, mi.Texture):
             self.m_film_tex = raw
             self.m_film_ior = mi.Float(0.0)

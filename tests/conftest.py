@@ -1,0 +1,30 @@
+"""Shared pytest fixtures: Mitsuba variants (skipped where a machine lacks them)."""
+
+import pytest
+
+
+def _set_variant(name):
+    mi = pytest.importorskip("mitsuba")
+    if name not in mi.variants():
+        pytest.skip(f"Mitsuba variant {name} is not available here")
+    mi.set_variant(name)
+    import thinfilm.bsdf
+
+    thinfilm.bsdf.register()
+    return mi
+
+
+@pytest.fixture
+def use_variant():
+    """Call with a variant name: sets it, registers the plugin, returns the mitsuba module."""
+    return _set_variant
+
+
+@pytest.fixture(params=["llvm_ad_mono_polarized", "llvm_ad_spectral_polarized", "scalar_spectral_polarized"])
+def polarized_variant(request):
+    return _set_variant(request.param)
+
+
+@pytest.fixture(params=["llvm_ad_mono", "llvm_ad_spectral", "scalar_spectral"])
+def unpolarized_variant(request):
+    return _set_variant(request.param)
