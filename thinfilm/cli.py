@@ -45,6 +45,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--variant", default="llvm_ad_spectral_polarized", help="Mitsuba variant (default: %(default)s)")
     r.add_argument("--spp", type=_positive_int, default=None, help="samples per pixel (overrides the scene)")
     r.add_argument("--seed", type=int, default=0, help="sampler seed (default: %(default)s)")
+    r.add_argument("--exposure", default="auto",
+                   help="PNG brightness: 'auto' (99.5th percentile to 90%%) or a gain (the EXR stays linear)")
     r.set_defaults(target="thinfilm.render:cli_main")
 
     g = sub.add_parser("generate", help="generate a benchmark dataset from a scene spec or preset")
