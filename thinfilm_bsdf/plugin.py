@@ -87,6 +87,18 @@ def _positive_float(props, name, default, allow_zero=False):
     return value
 
 
+def _texture(props, name):
+    """The texture given for ``name`` (a texture or spectrum object), else None."""
+    if name not in props:
+        return None
+    value = props.get(name)
+    if isinstance(value, mi.Texture):
+        return value
+    if props.type(name) == mi.Properties.Type.Spectrum:
+        return props.get_unbounded_texture(name)
+    return None
+
+
 class _ThinFilmMixin:
     """Thin-film interference BSDF (see the module docstring for the parameter table).
 
@@ -100,19 +112,17 @@ class _ThinFilmMixin:
             _fail(f"needs a spectral or mono variant, not '{mi.variant()}'")
 
         # Thickness: number or texture.
-        self.m_thickness_tex = None
-        if "thickness" in props and isinstance(props.get("thickness"), mi.Texture):
-            self.m_thickness_tex = props.get("thickness")
+        self.m_thickness_tex = _texture(props, "thickness")
+        if self.m_thickness_tex is not None:
             self.m_thickness = mi.Float(0.0)
         else:
             self.m_thickness = mi.Float(_positive_float(props, "thickness", 400.0, allow_zero=True))
 
         # Film index: number, spectrum texture or material name.
-        self.m_film_tex = None
+        self.m_film_tex = _texture(props, "film_ior")
         self.m_film_dispersion = None
         raw = props.get("film_ior", 1.37) if "film_ior" in props else 1.37
-        if isinstance(raw, mi.Texture):
-            self.m_film_tex = raw
+        if self.m_film_tex is not None:
             self.m_film_ior = mi.Float(0.0)
         elif isinstance(raw, str):
             try:
