@@ -9,10 +9,10 @@ illuminant, relative to the perfect reflecting diffuser (reflectance 1 at every 
     X = k \\sum_\\lambda R(\\lambda) E(\\lambda) \\bar x(\\lambda) \\Delta\\lambda, \\quad
     k = 100 / \\sum_\\lambda E(\\lambda) \\bar y(\\lambda) \\Delta\\lambda .
 
-``Δλ`` is the band step on a uniform grid (every band stands for its own interval, as a
-filter camera measures it) and the trapezoid weights on a non-uniform one. The
-illuminant comes from :func:`thinfilm.colorimetry.illuminant_spd`, the one used for camera
-RGB, so both paths see the same light. CIELAB (``colour.XYZ_to_Lab``) and the colour
+``Δλ`` are the trapezoid weights of the band grid
+(:func:`thinfilm.colorimetry.band_widths`) and the illuminant comes from
+:func:`thinfilm.colorimetry.illuminant_spd`: the same quadrature and light as camera RGB,
+so a camera that satisfies the Luther condition gives exactly these XYZ. CIELAB (``colour.XYZ_to_Lab``) and the colour
 differences (``colour.delta_E``, methods ``"CIE 1976"`` — the paper's Eq. 31 — and
 ``"CIE 2000"``) come from colour-science.
 
@@ -59,14 +59,6 @@ __all__ = [
 OBSERVER = "CIE 1931 2 Degree Standard Observer"
 
 
-def _step_weights(wavelengths_nm) -> np.ndarray:
-    wl = np.asarray(wavelengths_nm, dtype=np.float64)
-    d = np.diff(wl)
-    if wl.ndim == 1 and wl.size >= 2 and np.all(d > 0) and np.allclose(d, d[0], rtol=1e-9, atol=1e-9):
-        return np.full(wl.shape, d[0])
-    return band_widths(wl)
-
-
 def cie1931_cmfs(wavelengths_nm) -> np.ndarray:
     """CIE 1931 2° colour-matching functions x̄, ȳ, z̄ at ``wavelengths_nm``, shape (B, 3).
 
@@ -85,7 +77,7 @@ def cie1931_cmfs(wavelengths_nm) -> np.ndarray:
 @functools.lru_cache(maxsize=16)
 def _xyz_weights_cached(wl_key: tuple, illuminant: str) -> np.ndarray:
     wl = np.asarray(wl_key, dtype=np.float64)
-    e = illuminant_spd(illuminant, wl) * _step_weights(wl)
+    e = illuminant_spd(illuminant, wl) * band_widths(wl)
     w = cie1931_cmfs(wl) * e[:, None]
     norm = w[:, 1].sum()
     if norm <= 0:

@@ -75,8 +75,7 @@ def save_panels(path, panels, title=None, panel_size=3.2, dpi=100) -> Path:
     for ax, p in zip(axes, panels):
         img = np.asarray(p["image"])
         if img.ndim == 2:
-            cmap = matplotlib.colormaps[p.get("cmap", "viridis")].copy()
-            cmap.set_bad((_BACKGROUND,) * 3)
+            cmap = matplotlib.colormaps[p.get("cmap", "viridis")].with_extremes(bad=(_BACKGROUND,) * 3)
             finite = img[np.isfinite(img)]
             vmin = p.get("vmin", float(finite.min()) if finite.size else 0.0)
             vmax = p.get("vmax", float(finite.max()) if finite.size else 1.0)
