@@ -28,7 +28,6 @@ Outputs: ``metrics.json`` (exactly the keys of ``DESIGN.md``), ``evaluation.json
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
