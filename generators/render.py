@@ -1,0 +1,231 @@
+"""Band-integrated Stokes cubes rendered through the ``thinfilm`` plugin, and the captures
+(polarization RGB camera, s-polarized hyperspectral camera) computed from them.
+
+Rendering runs in Mitsuba's ``llvm_ad_mono_polarized`` variant (the caller sets it): the
+``stokes`` integrator with one non-jittered sample per pixel, so every pixel is the exact
+pixel-centre ray and images are deterministic. The variant carries no wavelength; the
+plugin's ``wavelength`` parameter is changed through ``mi.traverse`` between renders, which
+reuses the compiled kernel (about 10-20 ms per 256 x 256 render on 2 cores).
+
+Band integration
+----------------
+Each band is the passband-weighted mean of renders at several sub-wavelengths
+(:func:`passband_quadrature`), not a point sample:
+
+``gaussian``
+    Sub-wavelengths on a uniform lattice of spacing ``h <= FWHM / 2`` that divides the band
+    step (so neighbouring bands share renders: 81 bands of 4 nm at FWHM 4 nm take 167
+    renders at 2 nm), out to 4 sigma, weights exp(-(λ - λ_b)² / 2σ²) normalised per band.
+    The lattice sum of a Gaussian-windowed spectrum differs from the integral by the
+    aliasing term exp(-σ²(2π/h - a)²/2) with a = dφ/dλ the film's phase rate (below
+    0.2 rad/nm for films under 1 µm): under 1e-5 at h = FWHM/2; the 4-sigma cut removes
+    6e-5 of the weight before renormalisation.
+``box``
+    Midpoint rule with ``ceil(FWHM / 1 nm)`` equal-weight sub-wavelengths per band: error
+    below (a h)² / 24 of the oscillating part (≈ 2e-4 for a = 0.075 rad/nm, h = 1 nm).
+
+``band_fwhm_nm = 0`` point-samples the band centres.
+
+Against point sampling, band integration damps the thin-film fringes by about
+exp(-(a σ)²/2): 0.8 % of the fringe amplitude for 400 nm of MgF2 at 400 nm, FWHM 4 nm.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+__all__ = [
+    "passband_quadrature",
+    "render_stokes_cube",
+    "polarizer_intensity",
+    "spectral_s_from_stokes",
+    "captures_from_stokes",
+    "GAUSSIAN_TRUNCATION_SIGMA",
+    "BOX_SUBSTEP_NM",
+]
+
+GAUSSIAN_TRUNCATION_SIGMA = 4.0
+BOX_SUBSTEP_NM = 1.0
+_FWHM_TO_SIGMA = 1.0 / (2.0 * math.sqrt(2.0 * math.log(2.0)))
+
+
+def passband_quadrature(wavelengths_nm, band_fwhm_nm: float, passband: str = "gaussian"):
+    """Sub-wavelengths and weights that integrate each band over its passband.
+
+    Parameters
+    ----------
+    wavelengths_nm : array (B,)
+        Band centres, increasing.
+    band_fwhm_nm : float
+        Full width at half maximum (gaussian) or full width (box); 0 point-samples.
+    passband : {"gaussian", "box"}
+
+    Returns
+    -------
+    sub_nm : ndarray (K,)
+        Sub-wavelengths to render, increasing.
+    weights : ndarray (B, K)
+        Non-negative, each row sums to 1: band b = Σ_k weights[b, k] · image(sub_nm[k]).
+    """
+    wl = np.asarray(wavelengths_nm, dtype=np.float64)
+    if wl.ndim != 1 or wl.size == 0 or np.any(np.diff(wl) <= 0):
+        raise ValueError("wavelengths_nm must be a non-empty increasing 1-D array")
+    if band_fwhm_nm < 0:
+        raise ValueError("band_fwhm_nm must be >= 0")
+    if band_fwhm_nm == 0:
+        return wl.copy(), np.eye(wl.size)
+    if passband == "gaussian":
+        sigma = band_fwhm_nm * _FWHM_TO_SIGMA
+        h = 0.5 * band_fwhm_nm
+        steps = np.diff(wl)
+        if steps.size and np.allclose(steps, steps[0], rtol=0, atol=1e-9 * max(1.0, steps[0])):
+            h = steps[0] / math.ceil(steps[0] / h - 1e-9)
+        reach = GAUSSIAN_TRUNCATION_SIGMA * sigma
+        j_lo = math.floor((wl[0] - reach - wl[0]) / h + 1e-9)
+        j_hi = math.ceil((wl[-1] + reach - wl[0]) / h - 1e-9)
+        lattice = wl[0] + h * np.arange(j_lo, j_hi + 1)
+        d = lattice[None, :] - wl[:, None]
+        weights = np.where(np.abs(d) <= reach * (1 + 1e-9), np.exp(-0.5 * (d / sigma) ** 2), 0.0)
+        used = weights.sum(axis=0) > 0
+        sub, weights = lattice[used], weights[:, used]
+    elif passband == "box":
+        n = max(1, math.ceil(band_fwhm_nm / BOX_SUBSTEP_NM - 1e-9))
+        offsets = band_fwhm_nm * ((np.arange(n) + 0.5) / n - 0.5)
+        points = (wl[:, None] + offsets[None, :]).ravel()
+        sub, inverse = np.unique(np.round(points, 9), return_inverse=True)
+        weights = np.zeros((wl.size, sub.size))
+        np.add.at(weights, (np.repeat(np.arange(wl.size), n), inverse.ravel()), 1.0 / n)
+    else:
+        raise ValueError(f"passband must be 'gaussian' or 'box', got {passband!r}")
+    return sub, weights / weights.sum(axis=1, keepdims=True)
+
+
+def _stokes_channels(scene):
+    """Indices of S0, S1, S2 in the film's output (first colour channel of each)."""
+    film = scene.sensors()[0].film()
+    st = film.bitmap().struct_() if hasattr(film, "bitmap") else None
+    names = [st[i].name for i in range(len(st))] if st is not None else []
+    try:
+        return [names.index(f"S{i}.R") if f"S{i}.R" in names else names.index(f"S{i}.Y")
+                for i in range(3)]
+    except ValueError:
+        raise RuntimeError(f"film channels {names} hold no Stokes components; use the 'stokes' "
+                           f"integrator in a polarized variant") from None
+
+
+def render_stokes_cube(scene, wavelengths_nm, band_fwhm_nm: float, passband: str = "gaussian",
+                       progress: bool = False) -> dict:
+    """Render the band-integrated Stokes cube of a scene.
+
+    Parameters
+    ----------
+    scene : dict or mitsuba.Scene
+        A scene with the ``stokes`` integrator, an ``hdrfilm`` and ``thinfilm`` BSDFs, as made
+        by :func:`thinfilm.generators.scene.build_scene` or ``normal_map_scene``. The
+        variant must be ``*_mono_polarized`` (set by the caller).
+    wavelengths_nm : array (B,)
+        Band centres.
+    band_fwhm_nm : float
+        Passband width (see :func:`passband_quadrature`).
+    passband : {"gaussian", "box"}
+    progress : bool
+        tqdm progress bar on stderr (shown only on a terminal).
+
+    Returns
+    -------
+    dict
+        ``S0``, ``S1``, ``S2``: (H, W, B) float64 in reflectance units (dome radiance 1),
+        Stokes frame of ``DESIGN.md`` (S1 = I(0°) - I(90°), 0° = image +x); ``mask``: (H, W)
+        bool, pixels whose centre ray hits a surface facing the camera.
+    """
+    import mitsuba as mi
+
+    from .scene import cast_ground_truth, register_plugins
+
+    variant = mi.variant() or ""
+    if not (variant.endswith("mono_polarized")):
+        raise RuntimeError(f"render_stokes_cube needs a *_mono_polarized Mitsuba variant, "
+                           f"the current one is {variant or 'not set'}")
+    register_plugins()
+    if isinstance(scene, dict):
+        scene = mi.load_dict(scene)
+    params = mi.traverse(scene)
+    keys = [k for k in params.keys() if k == "wavelength" or k.endswith(".wavelength")]
+    if not keys:
+        raise ValueError("the scene has no 'thinfilm' BSDF with a 'wavelength' parameter")
+    sub_nm, weights = passband_quadrature(wavelengths_nm, float(band_fwhm_nm), passband)
+    width, height = (int(v) for v in scene.sensors()[0].film().size())
+    # Render once so the film's channel layout is known.
+    _set_wavelength(params, keys, float(sub_nm[0]))
+    first = np.asarray(mi.render(scene, spp=1, seed=0))
+    channels = _stokes_channels(scene)
+
+    cube = np.zeros((3, weights.shape[0], height, width), dtype=np.float64)
+    from tqdm import tqdm
+
+    bar = tqdm(total=len(sub_nm), desc="rendering", unit="λ", leave=False,
+               disable=None if progress else True)
+    for k, lam in enumerate(sub_nm):
+        if k == 0:
+            img = first
+        else:
+            _set_wavelength(params, keys, float(lam))
+            img = np.asarray(mi.render(scene, spp=1, seed=0))
+        s = np.moveaxis(img[..., channels], -1, 0).astype(np.float64)
+        for b in np.nonzero(weights[:, k])[0]:
+            cube[:, b] += weights[b, k] * s
+        bar.update(1)
+    bar.close()
+    mask = cast_ground_truth(scene)["mask"]
+    out = {name: np.ascontiguousarray(np.moveaxis(cube[i], 0, -1)) for i, name in enumerate(("S0", "S1", "S2"))}
+    out["mask"] = mask
+    return out
+
+
+def _set_wavelength(params, keys, lam: float) -> None:
+    for key in keys:
+        params[key] = lam
+    params.update()
+
+
+def polarizer_intensity(stokes: dict, angle_deg: float) -> np.ndarray:
+    """Intensity behind an ideal linear polarizer at ``angle_deg`` (from image +x towards +y):
+    I(α) = ½ (S0 + S1 cos 2α + S2 sin 2α)."""
+    a = math.radians(angle_deg)
+    return 0.5 * (stokes["S0"] + math.cos(2 * a) * stokes["S1"] + math.sin(2 * a) * stokes["S2"])
+
+
+def spectral_s_from_stokes(stokes: dict) -> np.ndarray:
+    """s-polarized reflectance as a rotating-polarizer hyperspectral camera measures it:
+    S0 + sqrt(S1² + S2²) (the maximum over polarizer angles, doubled)."""
+    return stokes["S0"] + np.hypot(stokes["S1"], stokes["S2"])
+
+
+def captures_from_stokes(stokes: dict, wavelengths_nm, rig: dict):
+    """Noise-free captures of both cameras from a Stokes cube.
+
+    Parameters
+    ----------
+    stokes : dict
+        ``S0``, ``S1``, ``S2``: (H, W, B) in reflectance units.
+    wavelengths_nm : array (B,)
+    rig : dict
+        ``polarizer_angles_deg``, ``camera``, ``illuminant`` (a resolved spec's ``rig`` or a
+        dataset's ``meta``).
+
+    Returns
+    -------
+    polarized_rgb : dict
+        angle (int degrees) → (H, W, 3) linear white-balanced camera RGB of I(α), through
+        :func:`thinfilm.colorimetry.camera_weights`.
+    spectral_s : ndarray (H, W, B)
+    """
+    from thinfilm.colorimetry import camera_weights
+
+    wl = np.asarray(wavelengths_nm, dtype=np.float64)
+    w = camera_weights(wl, rig["camera"], rig["illuminant"])
+    rgb_stokes = {k: stokes[k] @ w for k in ("S0", "S1", "S2")}  # linear: RGB of each component
+    polarized = {int(round(a)) % 360: polarizer_intensity(rgb_stokes, a) for a in rig["polarizer_angles_deg"]}
+    return polarized, spectral_s_from_stokes(stokes)
