@@ -46,7 +46,8 @@ def analytic_stokes(normals, mask, thickness_nm, wavelengths_nm, film_ior, subst
 def write_synthetic_dataset(root, size=24, wavelengths_nm=None, film_ior=1.37, substrate_ior=1.6,
                             thickness_nm=None, parts=("polarized_rgb", "spectral_s", "stokes"),
                             camera="Nikon 5100 (NPL)", illuminant="D65"):
-    """Write a noise-free ``thinfilm-dataset/1`` folder of a hemisphere; returns
+    """Write a noise-free ``thinfilm-dataset/1`` folder of a hemisphere (point-sampled bands,
+    ``band_fwhm_nm = 0``); returns
     ``(root, normals, mask, thickness_nm, stokes)``."""
     root = Path(root)
     root.mkdir(parents=True)
@@ -60,7 +61,7 @@ def write_synthetic_dataset(root, size=24, wavelengths_nm=None, film_ior=1.37, s
     azimuth = np.degrees(np.arctan2(n[..., 1], n[..., 0])) % 360.0
     angles = [0, 45, 90, 135]
     write_json(root / "meta.json", {
-        "format": FORMAT, "wavelengths_nm": wl.tolist(), "band_fwhm_nm": 4.0,
+        "format": FORMAT, "wavelengths_nm": wl.tolist(), "band_fwhm_nm": 0.0, "passband": "gaussian",
         "polarizer_angles_deg": angles, "camera": camera, "illuminant": illuminant,
         "film_ior": film_ior, "substrate_ior": substrate_ior, "projection": "orthographic",
         "seed": 0, "noise": {"model": "none"}, "versions": {}})

@@ -3,15 +3,17 @@
 ``thinfilm evaluate DATASET ESTIMATE --out DIR`` (``DESIGN.md``, issue 6):
 
 1. The estimated normals, thickness and film index are re-rendered in Mitsuba with the
-   dataset's rig (orthographic camera, uniform dome, polarizer angles, bands, no noise)
-   as a *normal-mapped plane*: one small quad per image pixel under the orthographic
-   camera, whose four vertices carry that pixel's estimated normal as shading normal and
-   whose texture coordinates point at that pixel's texel of a thickness bitmap (``raw``,
-   nearest). A pixel-centre ray therefore meets exactly the estimated normal and
-   thickness, and the plugin's Mueller matrix is evaluated in that shading frame. The
-   dome is direction-only (a ``constant`` emitter), so for the convex presets this plane
-   sees the same light as the true geometry; interreflections of concave shapes are not
-   reproduced (the paper's model has none either).
+   dataset's rig (orthographic camera, uniform dome, polarizer angles, bands and passband,
+   no noise) as a *normal-mapped plane*: each valid pixel becomes a small flat patch under
+   the orthographic camera whose vertices carry that pixel's estimated normal as shading
+   normal, with the estimated thickness looked up at the pixel centre
+   (:func:`thinfilm.generators.scene.normal_map_scene`, rendered band by band by
+   :func:`thinfilm.generators.render.render_stokes_cube`, the code that rendered the
+   captures). A pixel-centre ray therefore meets exactly the estimated normal and
+   thickness, and the plugin evaluates its Mueller matrix in that shading frame. The dome
+   depends on direction only, so for the convex presets the plane sees the same light as
+   the true geometry; interreflections of concave shapes are not reproduced (the paper's
+   model has none either).
 2. The re-rendered Stokes cube becomes the same captures the dataset holds: s-polarized
    spectra ``S0 + sqrt(S1² + S2²)`` and polarized camera RGB.
 3. Errors per pixel over the object mask (ground-truth mask ∧ estimate ``valid``):
@@ -42,7 +44,6 @@ __all__ = [
     "angular_error_deg",
     "geometry_error_maps",
     "s_polarized_from_stokes",
-    "polarized_rgb_from_stokes",
     "stokes_from_polarized",
     "appearance_error_maps",
     "film_ior_value",
@@ -110,20 +111,6 @@ def s_polarized_from_stokes(stokes: dict) -> np.ndarray:
     """S-polarized reflectance ``S0 + sqrt(S1² + S2²)`` (the maximum over polarizer angles,
     doubled), as ``spectral_s.exr`` defines it; works per band or per RGB channel."""
     return stokes["S0"] + np.sqrt(stokes["S1"] ** 2 + stokes["S2"] ** 2)
-
-
-def polarized_rgb_from_stokes(stokes: dict, wavelengths_nm, angles_deg, camera, illuminant) -> dict:
-    """Camera RGB behind an ideal polarizer at each angle:
-    ``I(α) = ½ (S0 + S1 cos 2α + S2 sin 2α)`` per band, then
-    :func:`thinfilm.colorimetry.spectra_to_camera_rgb`."""
-    from .colorimetry import spectra_to_camera_rgb
-
-    out = {}
-    for a in angles_deg:
-        t = np.radians(float(a))
-        spec = 0.5 * (stokes["S0"] + stokes["S1"] * np.cos(2 * t) + stokes["S2"] * np.sin(2 * t))
-        out[int(round(a)) % 360] = spectra_to_camera_rgb(spec, wavelengths_nm, camera, illuminant)
-    return out
 
 
 def stokes_from_polarized(images: dict) -> dict:
@@ -210,17 +197,18 @@ def _require_variant():
     if variant is None or not variant.endswith("mono_polarized") or variant.startswith("scalar"):
         raise RuntimeError(f"re-rendering needs a vectorized mono polarized Mitsuba variant "
                            f"(e.g. {RENDER_VARIANT}) set by the caller, not {variant!r}")
-    import thinfilm.bsdf
+    from thinfilm.generators.scene import register_plugins
 
-    thinfilm.bsdf.register()
+    register_plugins()
     return mi
 
 
 def normal_map_mesh(normals, thickness_nm, valid, bsdf):
-    """A Mitsuba mesh: one quad per valid pixel in the plane z = 0, pixel (row i, column j)
-    covering x ∈ [j − W/2, j + 1 − W/2], y ∈ [H/2 − i − 1, H/2 − i]; its four vertices carry the
-    pixel's normal (shading normal) and the texture coordinate of the pixel's centre in an
-    H×W thickness bitmap. Returns ``None`` when no pixel is valid."""
+    """A Mitsuba mesh for images that are not square (the generator's
+    ``normal_map_scene`` covers square ones): one quad per valid pixel in the plane z = 0,
+    pixel (row i, column j) covering x ∈ [j − W/2, j + 1 − W/2], y ∈ [H/2 − i − 1, H/2 − i];
+    its four vertices carry the pixel's normal (shading normal) and the texture coordinate
+    of the pixel's centre in an H×W thickness bitmap. ``None`` when no pixel is valid."""
     mi = _require_variant()
     normals = np.asarray(normals, dtype=np.float64)
     h, w = valid.shape
@@ -252,110 +240,132 @@ def normal_map_mesh(normals, thickness_nm, valid, bsdf):
     return mesh
 
 
-def _dome_emitter(dome_hole_deg: float) -> dict:
-    """The uniform unpolarized dome: a ``constant`` emitter of radiance 1, or, with a hole of
-    angular radius ``dome_hole_deg`` around the camera direction (+z), an ``envmap`` that is
-    1 except in that cap."""
-    import mitsuba as mi
+def _rectangular_scene(normals, thickness, valid, film_ior, substrate_ior, substrate_k, dome_hole_deg):
+    """Scene of :func:`normal_map_mesh` under an orthographic camera fitting the image, with
+    the generator's dome and integrator settings; ``None`` when no pixel is valid."""
+    mi = _require_variant()
+    from thinfilm.generators.scene import dome_dict
 
-    if dome_hole_deg <= 0:
-        return {"type": "constant", "radiance": 1.0}
-    # Lat-long map; Mitsuba's envmap has its pole along +y, so rotate +y onto +z.
-    rows, cols = 512, 1024
-    theta = (np.arange(rows) + 0.5) / rows * np.pi
-    img = np.ones((rows, cols, 3), dtype=np.float32)
-    img[theta < np.radians(dome_hole_deg)] = 0.0
-    return {"type": "envmap", "bitmap": mi.Bitmap(img),
-            "to_world": mi.ScalarTransform4f().rotate([1, 0, 0], 90.0)}
+    h, w = valid.shape
+    bsdf = mi.load_dict({
+        "type": "thinfilm", "substrate_ior": float(substrate_ior), "substrate_k": float(substrate_k),
+        "film_ior": film_ior if isinstance(film_ior, str) else float(film_ior),
+        "thickness": {"type": "bitmap", "bitmap": mi.Bitmap(thickness.astype(np.float32)[..., None]),
+                      "raw": True, "filter_type": "nearest", "wrap_mode": "clamp"}})
+    mesh = normal_map_mesh(normals, thickness, valid, bsdf)
+    if mesh is None:
+        return None
+    half = max(w, h) / 2.0
+    return {
+        "type": "scene",
+        "integrator": {"type": "stokes", "nested": {"type": "path", "max_depth": 3, "hide_emitters": True}},
+        "sensor": {
+            "type": "orthographic",
+            "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 10.0], target=[0, 0, 0], up=[0, 1, 0])
+            @ mi.ScalarTransform4f().scale([half, half, 1.0]),
+            "film": {"type": "hdrfilm", "width": w, "height": h, "rfilter": {"type": "box"},
+                     "pixel_format": "luminance", "sample_border": False},
+            "sampler": {"type": "stratified", "sample_count": 1, "jitter": False},
+        },
+        "dome": dome_dict(float(dome_hole_deg)),
+        "estimate": mesh,
+    }
+
+
+def _render_bands(scene_dict, wavelengths_nm, band_fwhm_nm, passband, progress):
+    """Band-integrated Stokes cube of any scene (square or not), with the generator's
+    passband quadrature (:func:`thinfilm.generators.render.passband_quadrature`)."""
+    mi = _require_variant()
+    from tqdm import tqdm
+
+    from thinfilm.generators.render import passband_quadrature
+
+    scene = mi.load_dict(scene_dict)
+    params = mi.traverse(scene)
+    keys = [k for k in params.keys() if k == "wavelength" or k.endswith(".wavelength")]
+    sub_nm, weights = passband_quadrature(wavelengths_nm, float(band_fwhm_nm), passband)
+    w, h = (int(v) for v in scene.sensors()[0].film().size())
+    cube = np.zeros((3, h, w, weights.shape[0]))
+    channels = None
+    for k, lam in enumerate(tqdm(sub_nm, desc="re-rendering", unit="λ", leave=False,
+                                 disable=None if progress else True)):
+        for key in keys:
+            params[key] = float(lam)
+        params.update()
+        img = np.asarray(mi.render(scene, spp=1, seed=0), dtype=np.float64)
+        if channels is None:  # the film holds Y, then S0..S3 as R, G, B (equal in mono)
+            st = scene.sensors()[0].film().bitmap().struct_()
+            names = [st[i].name for i in range(len(st))]
+            channels = [names.index(f"S{i}.R") for i in range(3)]
+        for b in np.nonzero(weights[:, k])[0]:
+            cube[..., b] += weights[b, k] * np.moveaxis(img[..., channels], -1, 0)
+    return {s: cube[i] for i, s in enumerate(("S0", "S1", "S2"))}
 
 
 def render_normal_map(normals, thickness_nm, valid, wavelengths_nm, film_ior, substrate_ior,
-                      substrate_k=0.0, dome_hole_deg=0.0, band_fwhm_nm=0.0, progress=False) -> dict:
-    """Stokes cube of a per-pixel normal and thickness field under the orthographic camera.
+                      substrate_k=0.0, dome_hole_deg=0.0, band_fwhm_nm=0.0, passband="gaussian",
+                      progress=False) -> dict:
+    """Band-integrated Stokes cube of a per-pixel normal and thickness field, rendered through
+    the ``thinfilm`` plugin under the generator's orthographic camera and dome.
 
-    Renders band by band in the current mono polarized variant, changing the plugin's
-    ``wavelength`` through ``mi.traverse`` (one compiled kernel for all bands), with exact
-    pixel-centre rays (``stratified``, 1 spp, no jitter). ``band_fwhm_nm`` is accepted for
-    the rig's record; each band is rendered at its centre wavelength.
+    Square images use the generator's :func:`thinfilm.generators.scene.normal_map_scene` and
+    :func:`thinfilm.generators.render.render_stokes_cube` (the code that rendered the
+    captures); other shapes a quad-per-pixel plane (:func:`normal_map_mesh`) with the same
+    passband quadrature. Needs a mono polarized variant set by the caller.
 
     Returns
     -------
     dict ``"S0"``, ``"S1"``, ``"S2"`` → (H, W, B) float64 in reflectance units, Stokes in
     the ``DESIGN.md`` frame (``S1 = I(0°) − I(90°)``, 0° = image +x); zero off ``valid``.
     """
-    mi = _require_variant()
-    import drjit as dr
-    from tqdm import tqdm
-
-    del band_fwhm_nm
+    _require_variant()
     valid = np.asarray(valid, dtype=bool)
     h, w = valid.shape
     wl = np.asarray(wavelengths_nm, dtype=np.float64)
-    out = {s: np.zeros((h, w, wl.size)) for s in ("S0", "S1", "S2")}
+    normals = np.asarray(normals, dtype=np.float64)
+    valid = valid & np.all(np.isfinite(normals), axis=-1) & (np.nan_to_num(normals[..., 2]) > 0)
+    safe_normals = np.where(valid[..., None], np.nan_to_num(normals), [0.0, 0.0, 1.0])
     thickness = np.where(valid, np.asarray(thickness_nm, dtype=np.float64), 0.0)
     thickness = np.clip(np.nan_to_num(thickness), 0.0, None)
-    bsdf_dict = {"type": "thinfilm", "substrate_ior": float(substrate_ior),
-                 "substrate_k": float(substrate_k), "wavelength": float(wl[0]),
-                 "film_ior": film_ior if isinstance(film_ior, str) else float(film_ior),
-                 "thickness": {"type": "bitmap", "bitmap": mi.Bitmap(thickness.astype(np.float32)[..., None]),
-                               "raw": True, "filter_type": "nearest", "wrap_mode": "clamp"}}
-    bsdf = mi.load_dict(bsdf_dict)
-    safe_normals = np.where(valid[..., None], np.nan_to_num(np.asarray(normals, dtype=np.float64)), [0, 0, 1])
-    mesh = normal_map_mesh(safe_normals, thickness, valid, bsdf)
-    if mesh is None:
-        return out
-    half = max(w, h) / 2.0
-    scene_dict = {
-        "type": "scene",
-        "integrator": {"type": "stokes",
-                       "nested": {"type": "path", "max_depth": 2, "hide_emitters": True}},
-        "sensor": {
-            "type": "orthographic",
-            "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 10.0], target=[0, 0, 0], up=[0, 1, 0])
-            @ mi.ScalarTransform4f().scale([half, half, 1.0]),
-            "film": {"type": "hdrfilm", "width": w, "height": h, "rfilter": {"type": "box"},
-                     "pixel_format": "luminance"},
-            "sampler": {"type": "stratified", "sample_count": 1, "jitter": False},
-        },
-        "emitter": _dome_emitter(float(dome_hole_deg)),
-        "estimate": mesh,
-    }
-    scene = mi.load_dict(scene_dict)
-    params = mi.traverse(scene)
-    key = next(k for k in params.keys() if k.endswith("wavelength"))
-    for b in tqdm(range(wl.size), desc="re-render bands", unit="band", disable=not progress, leave=False):
-        params[key] = float(wl[b])
-        params.update()
-        img = np.asarray(mi.render(scene, spp=1, seed=0), dtype=np.float64)
-        # Channels: Y, S0, S1, S2, S3 (mono) — or R, G, B triplets per Stokes component.
-        nch = img.shape[-1]
-        step = 1 if nch in (4, 5) else 3
-        first = 1 if nch in (5, 13) else 0
-        for i, s in enumerate(("S0", "S1", "S2")):
-            out[s][..., b] = img[..., first + i * step]
-    dr.sync_thread()
-    for s in out:
-        out[s][~valid] = 0.0
+    film = film_ior if isinstance(film_ior, str) else float(film_ior)
+    if not valid.any():
+        return {s: np.zeros((h, w, wl.size)) for s in ("S0", "S1", "S2")}
+    if h == w:
+        from thinfilm.generators.render import render_stokes_cube
+        from thinfilm.generators.scene import normal_map_scene
+
+        scene = normal_map_scene(safe_normals, thickness, valid, film, float(substrate_ior),
+                                 float(substrate_k), rig={"dome_hole_deg": float(dome_hole_deg)})
+        out = render_stokes_cube(scene, wl, float(band_fwhm_nm), passband, progress=progress)
+        out.pop("mask", None)
+    else:
+        scene = _rectangular_scene(safe_normals, thickness, valid, film, substrate_ior, substrate_k,
+                                   dome_hole_deg)
+        out = _render_bands(scene, wl, band_fwhm_nm, passband, progress)
+    for s in ("S0", "S1", "S2"):
+        out[s] = np.where(valid[..., None], out[s], 0.0)
     return out
 
 
 def rerender_estimate(meta: dict, estimate: dict, film_ior, substrate_ior, progress=False) -> dict:
-    """Re-render an estimate with the dataset's rig (``meta.json``): returns the Stokes cube
-    and the noise-free captures ``spectral_s`` (H, W, B) and ``polarized_rgb`` {angle: (H, W, 3)}."""
+    """Re-render an estimate with the dataset's rig (``meta.json``: bands, passband, dome,
+    polarizer angles, camera, illuminant; no noise): returns the Stokes cube and the
+    noise-free captures ``spectral_s`` (H, W, B) and ``polarized_rgb`` {angle: (H, W, 3)}
+    (:func:`thinfilm.generators.render.captures_from_stokes`)."""
+    from thinfilm.generators.render import captures_from_stokes
+
     from .colorimetry import DEFAULT_CAMERA, DEFAULT_ILLUMINANT
 
     wl = np.asarray(meta["wavelengths_nm"], dtype=np.float64)
-    rig = meta.get("rig", {}) if isinstance(meta.get("rig"), dict) else {}
-    dome = float(meta.get("dome_hole_deg", rig.get("dome_hole_deg", 0.0)) or 0.0)
-    stokes = render_normal_map(estimate["normal"], estimate["thickness"], estimate["valid"], wl,
-                               film_ior, substrate_ior, float(meta.get("substrate_k", 0.0) or 0.0),
-                               dome_hole_deg=dome, band_fwhm_nm=meta.get("band_fwhm_nm", 0.0),
-                               progress=progress)
-    camera = meta.get("camera", DEFAULT_CAMERA)
-    illuminant = meta.get("illuminant", DEFAULT_ILLUMINANT)
-    angles = meta.get("polarizer_angles_deg", [0, 45, 90, 135])
-    return {"stokes": stokes, "spectral_s": s_polarized_from_stokes(stokes),
-            "polarized_rgb": polarized_rgb_from_stokes(stokes, wl, angles, camera, illuminant)}
+    stokes = render_normal_map(
+        estimate["normal"], estimate["thickness"], estimate["valid"], wl, film_ior, substrate_ior,
+        float(meta.get("substrate_k", 0.0) or 0.0), dome_hole_deg=float(meta.get("dome_hole_deg", 0.0) or 0.0),
+        band_fwhm_nm=float(meta.get("band_fwhm_nm", 0.0) or 0.0), passband=meta.get("passband", "gaussian"),
+        progress=progress)
+    rig = {"camera": meta.get("camera", DEFAULT_CAMERA), "illuminant": meta.get("illuminant", DEFAULT_ILLUMINANT),
+           "polarizer_angles_deg": meta.get("polarizer_angles_deg", [0, 45, 90, 135])}
+    polarized_rgb, spectral_s = captures_from_stokes(stokes, wl, rig)
+    return {"stokes": stokes, "spectral_s": spectral_s, "polarized_rgb": polarized_rgb}
 
 
 # -- the evaluate command -------------------------------------------------------------------
