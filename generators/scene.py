@@ -312,7 +312,7 @@ def dome_dict(hole_deg: float = 0.0) -> dict:
     img = np.ones((rows, cols, 3), dtype=np.float32)
     img[theta < hole_deg] = 0.0
     # The envmap's pole (row 0) is its local +y; rotate it onto +z, the camera direction.
-    return {"type": "envmap", "bitmap": mi.Bitmap(img), "filter_type": "nearest",
+    return {"type": "envmap", "bitmap": mi.Bitmap(img),
             "to_world": mi.ScalarTransform4f().rotate([1, 0, 0], 90)}
 
 
@@ -426,7 +426,7 @@ def cast_ground_truth(scene, thickness=None, frame: Frame | None = None) -> dict
     -------
     dict
         ``normal`` (H, W, 3), ``zenith``, ``azimuth`` (deg), ``thickness`` (nm), ``depth``
-        (ray distance from the image plane), ``mask`` (bool: a hit whose shading normal faces
+        (distance from the image plane through the camera origin, along -z), ``mask`` (bool: a hit whose shading normal faces
         the camera). Background pixels hold 0.
     """
     import drjit as dr
@@ -440,7 +440,7 @@ def cast_ground_truth(scene, thickness=None, frame: Frame | None = None) -> dict
     si = scene.ray_intersect(mi.Ray3f(ray))
     valid = si.is_valid()
     n = si.sh_frame.n
-    values = [valid, n.x, n.y, n.z, si.t]
+    values = [valid, n.x, n.y, n.z, si.p]
     t_nm = None
     if thickness is not None and not np.isscalar(thickness):
         if frame is None:
@@ -453,7 +453,9 @@ def cast_ground_truth(scene, thickness=None, frame: Frame | None = None) -> dict
     normal = np.stack([np.asarray(c, dtype=np.float64).reshape(res, res) for c in (n.x, n.y, n.z)], axis=-1)
     mask = hit & (normal[..., 2] > 0)
     normal[~mask] = 0.0
-    depth = np.where(mask, np.asarray(si.t, dtype=np.float64).reshape(res, res), 0.0)
+    # Depth from the image plane through the camera origin (rays start at the near clip).
+    camera_z = float(np.asarray((sensor.world_transform() @ mi.Point3f(0, 0, 0)).z)[0])
+    depth = np.where(mask, camera_z - np.asarray(si.p.z, dtype=np.float64).reshape(res, res), 0.0)
     if t_nm is not None:
         thick = np.asarray(t_nm, dtype=np.float64).reshape(res, res)
     else:
