@@ -115,9 +115,13 @@ def seed_level(theta_rad, mask, contour_deg=70.0, smooth_px=1.5):
     sil = m & ~ndimage.binary_erosion(m, border_value=0)
     steep = m & (ths >= contour_deg)
     # a dome: steep pixels form a thin band along (part of) the silhouette
-    if steep.sum() < 0.5 * m.sum() and (steep & sil).sum() >= 0.3 * sil.sum() and (m & ~steep).any():
-        return np.where(m, contour_deg - ths, 1.0), "contour"
     seeds = silhouette_seeds(theta_rad, m)
+    if steep.sum() < 0.5 * m.sum() and (steep & sil).sum() >= 0.3 * sil.sum() and (m & ~steep).any():
+        # the occluding silhouette itself is always on the outer side (at low resolution the
+        # smoothed band can be thinner than a pixel)
+        phi = np.where(m, contour_deg - ths, 1.0)
+        phi = np.where(seeds & (th >= contour_deg), np.minimum(phi, -0.5), phi)
+        return phi, "contour"
     return np.where(seeds, -0.5, 0.5), "silhouette"
 
 
@@ -155,18 +159,33 @@ def fast_marching_height(slope, mask, phi):
     return z
 
 
-def _laplacian_rows(index, m):
-    """Sparse rows of the 5-point Laplacian at pixels whose four neighbours are in the mask."""
-    h, w = m.shape
-    inner = m.copy()
-    inner[0, :] = inner[-1, :] = inner[:, 0] = inner[:, -1] = False
-    inner &= np.roll(m, 1, 0) & np.roll(m, -1, 0) & np.roll(m, 1, 1) & np.roll(m, -1, 1)
-    r, c = np.nonzero(inner)
-    k = np.arange(r.size)
-    rows = np.concatenate([k] * 5)
-    cols = np.concatenate([index[r, c], index[r - 1, c], index[r + 1, c], index[r, c - 1], index[r, c + 1]])
-    vals = np.concatenate([np.full(r.size, -4.0)] + [np.ones(r.size)] * 4)
-    return rows, cols, vals, r.size
+def _thin_plate(index, m):
+    """Sparse second differences ``z_xx``, ``z_yy`` and ``sqrt(2) z_xy`` where they fit in the
+    mask (the thin-plate energy; unlike the Laplacian it also penalises saddles)."""
+    import scipy.sparse as sp
+
+    n = int(m.sum())
+    blocks = []
+
+    def rows_for(offsets, weights, ok):
+        r, c = np.nonzero(ok)
+        k = np.arange(r.size)
+        rows = np.concatenate([k] * len(offsets))
+        cols = np.concatenate([index[r + dr, c + dc] for dr, dc in offsets])
+        vals = np.concatenate([np.full(r.size, wt) for wt in weights])
+        return sp.csr_matrix((vals, (rows, cols)), shape=(r.size, n))
+
+    okx = np.zeros_like(m)
+    okx[:, 1:-1] = m[:, 1:-1] & m[:, :-2] & m[:, 2:]
+    blocks.append(rows_for([(0, -1), (0, 0), (0, 1)], [1.0, -2.0, 1.0], okx))
+    oky = np.zeros_like(m)
+    oky[1:-1, :] = m[1:-1, :] & m[:-2, :] & m[2:, :]
+    blocks.append(rows_for([(-1, 0), (0, 0), (1, 0)], [1.0, -2.0, 1.0], oky))
+    okxy = np.zeros_like(m)
+    okxy[:-1, :-1] = m[:-1, :-1] & m[:-1, 1:] & m[1:, :-1] & m[1:, 1:]
+    r2 = np.sqrt(2.0)
+    blocks.append(rows_for([(0, 0), (0, 1), (1, 0), (1, 1)], [r2, -r2, -r2, r2], okxy))
+    return sp.vstack(blocks).tocsr()
 
 
 def _difference_operators(index, m):
@@ -211,7 +230,7 @@ def _difference_operators(index, m):
 def refine_height(z0, slope, weight, mask, smoothness=1.0, iterations=6, slope_cap=None):
     """Weighted Gauss-Newton refinement of a height field towards ``|∇z| = slope``.
 
-    Minimises ``Σ_i w_i (|∇z|_i - s_i)² + smoothness Σ_i (Δz)_i²`` over the mask, linearising
+    Minimises ``Σ_i w_i (|∇z|_i - s_i)² + smoothness Σ_i |∇²z|_i²`` over the mask, linearising
     ``|∇z|`` about the current surface (``|∇z| ≈ u·∇z`` with ``u`` the current uphill
     direction): the data fix only the slope *magnitude*, weighted by how well each pixel's
     angle is determined; the gradient *direction* and the near-normal pixels (small weight) are
@@ -224,7 +243,7 @@ def refine_height(z0, slope, weight, mask, smoothness=1.0, iterations=6, slope_c
     weight : (H, W) inverse variance of ``slope`` (>= 0).
     mask : (H, W) bool.
     smoothness : float
-        Weight of the squared Laplacian.
+        Weight of the thin-plate energy (squared second derivatives).
     iterations : int
         Gauss-Newton steps.
     slope_cap : float, optional
@@ -247,8 +266,7 @@ def refine_height(z0, slope, weight, mask, smoothness=1.0, iterations=6, slope_c
     wv = np.clip(np.nan_to_num(weight, nan=0.0), 0.0, None)[m]
     z = np.nan_to_num(np.asarray(z0, dtype=np.float64), nan=0.0)[m]
     Gx, Gy = _difference_operators(index, m)
-    lr, lc, lv, nl = _laplacian_rows(index, m)
-    L = sp.csr_matrix((lv, (lr, lc)), shape=(nl, n))
+    L = _thin_plate(index, m)
     LtL = smoothness * (L.T @ L) + 1e-9 * sp.identity(n)
     for _ in range(iterations):
         p, q = Gx @ z, Gy @ z

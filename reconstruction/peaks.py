@@ -101,7 +101,8 @@ def find_peaks(spectra, wavelengths_nm, smooth_nm=8.0, window_nm=20.0, fit_nm=24
     window_nm : float
         A candidate must be the largest smoothed value within ``±window_nm``.
     fit_nm : float
-        Half-width of the parabola fit around a candidate, in nm (at least 2 bands either side).
+        Largest half-width of the parabola fit around a candidate, in nm (at least 2 bands
+        either side; also at most a quarter of the distance to the nearest trough).
     min_prominence : float
         Required rise of a candidate above the smallest smoothed value within
         ``±2 window_nm``, in units of the smoothed noise.
@@ -135,19 +136,32 @@ def find_peaks(spectra, wavelengths_nm, smooth_nm=8.0, window_nm=20.0, fit_nm=24
     rows, cols = np.nonzero(local)
     half = max(2, int(round(fit_nm / step)))
     half = min(half, (b - 1) // 2)
-    # window of 2*half+1 bands, shifted inwards at the ends of the range
-    start = np.clip(cols - half, 0, b - 1 - 2 * half)
+    # The fit window also stays within a quarter of the distance to the nearest trough
+    # (about ±π/4 of phase), so that the parabola holds for thick films with narrow peaks.
+    ar = np.broadcast_to(np.arange(b), S.shape)
+    lmin = np.zeros_like(local)
+    lmin[:, 1:-1] = (S[:, 1:-1] <= S[:, :-2]) & (S[:, 1:-1] < S[:, 2:])
+    prev_min = np.maximum.accumulate(np.where(lmin, ar, 0), axis=1)
+    next_min = (b - 1) - np.maximum.accumulate(np.where(lmin, b - 1 - ar, 0)[:, ::-1], axis=1)[:, ::-1]
+    dist = np.minimum(cols - prev_min[rows, cols], next_min[rows, cols] - cols)
+    half_k = np.clip(np.round(0.25 * dist), 2, half).astype(int)
+    # window of 2*half+1 bands (weights zero beyond the candidate's own half-width), shifted
+    # inwards at the ends of the range
+    start = np.clip(cols - half_k, 0, b - 1 - 2 * half_k) - (half - half_k)
     idx = start[:, None] + np.arange(2 * half + 1)[None, :]
+    inwin = (idx >= start[:, None] + (half - half_k)[:, None]) & (idx <= start[:, None] + (half + half_k)[:, None])
+    idx = np.clip(idx, 0, b - 1)
     # Least-squares parabola y = c0 + c1 x + c2 x² in wavenumber x = 1/λ (centred on the
     # candidate, scaled): the phase Δ is proportional to 1/λ and R is even in Δ about a peak,
     # so the parabola is symmetric there and its vertex unbiased.
     k_c = 1.0 / wl[cols]
-    scale = half * step / wl[cols] ** 2
+    scale = half_k * step / wl[cols] ** 2
     xs = (1.0 / wl[idx] - k_c[:, None]) / scale[:, None]
     y = R[rows[:, None], idx]
     V = np.stack([np.ones_like(xs), xs, xs * xs], axis=-1)
-    VtV = np.einsum("kij,kil->kjl", V, V)
-    Vty = np.einsum("kij,ki->kj", V, y)
+    wgt = inwin.astype(np.float64)
+    VtV = np.einsum("kij,ki,kil->kjl", V, wgt, V)
+    Vty = np.einsum("kij,ki,ki->kj", V, wgt, y)
     coef = np.linalg.solve(VtV, Vty[..., None])[..., 0] if rows.size else np.zeros((0, 3))
     c0, c1, c2 = coef[:, 0], coef[:, 1], coef[:, 2]
     good = c2 < 0

@@ -49,6 +49,7 @@ from .peaks import PEAK_NONE, PEAK_OK, PEAK_SEVERAL, find_peaks
 __all__ = [
     "METHODS",
     "DEFAULT_METHOD",
+    "PAPER_METHOD",
     "MIN_BANDS",
     "SpectralEstimate",
     "reconstruct_spectral",
@@ -59,6 +60,7 @@ __all__ = [
     "kobayashi_search",
     "estimate_film_ior",
     "fit_angle_thickness",
+    "initial_thickness",
     "cli_main",
 ]
 
@@ -223,7 +225,7 @@ def kobayashi_search(spectra, theta_rad, peak_wl_nm, substrate_ior, wavelengths_
 
 
 def fit_angle_thickness(spectra, theta0, thickness0, film_ior, substrate_ior, wavelengths_nm,
-                        iterations=12, fit_theta=True, theta_max_deg=89.5):
+                        iterations=12, fit_theta=True, theta_max_deg=89.5, stokes_noise=None):
     """Levenberg-Marquardt per pixel of (θ, d) — or d alone — to the whole spectrum.
 
     Parameters
@@ -233,6 +235,9 @@ def fit_angle_thickness(spectra, theta0, thickness0, film_ior, substrate_ior, wa
     film_ior, substrate_ior : float.
     fit_theta : bool
         False: θ stays at ``theta0`` and only the thickness is fitted.
+    stokes_noise : (N,) array_like, optional
+        Per-pixel noise of the measured S1, S2: the model then includes the noise bias of
+        ``S0 + sqrt(S1² + S2²)`` (see :func:`thinfilm.reconstruction.spectral_model.rs_spectra`).
 
     Returns
     -------
@@ -251,11 +256,13 @@ def fit_angle_thickness(spectra, theta0, thickness0, film_ior, substrate_ior, wa
     th_max = np.radians(theta_max_deg)
     sse = np.full(n, np.inf)
     A = np.zeros((n, 2, 2))
+    noise = None if stokes_noise is None else np.broadcast_to(np.asarray(stokes_noise, float), (n,))
     for _ in range(iterations):
         idx = np.nonzero(active)[0]
         if idx.size == 0:
             break
-        out = _sm.rs_spectra(th[idx], d[idx], film_ior, substrate_ior, wl, jac=jac)
+        nz = None if noise is None else noise[idx]
+        out = _sm.rs_spectra(th[idx], d[idx], film_ior, substrate_ior, wl, jac=jac, stokes_noise=nz)
         R, J = out[0], out[1:]
         r = S[idx] - R
         e0 = np.einsum("ij,ij->i", r, r)
@@ -285,7 +292,7 @@ def fit_angle_thickness(spectra, theta0, thickness0, film_ior, substrate_ior, wa
         dt = np.clip(dt, -0.2, 0.2)
         th_new = np.clip(np.abs(th[idx] + dt), 0.0, th_max)
         d_new = np.maximum(d[idx] + dd, 0.0)
-        R2 = _sm.rs_spectra(th_new, d_new, film_ior, substrate_ior, wl)
+        R2 = _sm.rs_spectra(th_new, d_new, film_ior, substrate_ior, wl, stokes_noise=nz)
         r2 = S[idx] - R2
         e1 = np.einsum("ij,ij->i", r2, r2)
         better = e1 < e0
@@ -302,6 +309,19 @@ def fit_angle_thickness(spectra, theta0, thickness0, film_ior, substrate_ior, wa
     sigma = np.sqrt(var * cov_tt) if fit_theta else np.full(n, np.inf)
     sigma = np.where(np.isfinite(sigma), sigma, np.inf)
     return th, d, sse, sigma
+
+
+def initial_thickness(spectra, theta_rad, peak_wl_nm, film_ior, substrate_ior, wavelengths_nm,
+                      max_thickness_nm=1.5 * MAX_THICKNESS_NM):
+    """Starting thickness per pixel for a known film index: the best order m of Eq. 29.
+
+    Returns (N,) thickness in nm (the candidate ``m λ_peak / (2 sqrt(n2² - sin² θ))`` whose
+    spectrum fits best).
+    """
+    dc, n2c, _ = _order_candidates(np.asarray(theta_rad, float), np.asarray(peak_wl_nm, float),
+                                   [film_ior], max_thickness_nm)
+    e = _sm.grid_sse(spectra, theta_rad, dc, n2c, substrate_ior, wavelengths_nm)
+    return dc[np.arange(dc.shape[0]), np.argmin(e, axis=1)]
 
 
 def _joint_film_ior(S, th, d, n2, n3, wl, iterations=15):
@@ -457,7 +477,8 @@ def _init_no_peak(S, n2, n3, wl, d_guess):
     return best_t, best_d
 
 
-def reconstruct_eikonal(cube, wavelengths_nm, substrate_ior, mask, smoothness=10.0, angle_floor_deg=0.2):
+def reconstruct_eikonal(cube, wavelengths_nm, substrate_ior, mask, smoothness=10.0, angle_floor_deg=0.2,
+                        condition_scale=2.0, noise_scale=1.0):
     """The default method (see the module docstring)."""
     wl = np.asarray(wavelengths_nm, dtype=np.float64)
     n3 = float(substrate_ior)
@@ -475,14 +496,15 @@ def reconstruct_eikonal(cube, wavelengths_nm, substrate_ior, mask, smoothness=10
     n2, n2_info = estimate_film_ior(spectra[use], theta_peak[use], pk.wavelength_nm[use], n3, wl)
     t["film_ior"] = time.perf_counter() - t0
 
-    # 2. (θ, d) per pixel
+    # 2. (θ, d) per pixel. The capture is S0 + sqrt(S1² + S2²); its noise bias is modelled
+    # with the S1/S2 noise of a four-angle rotating polarizer, about the band noise of the
+    # s spectrum where the light is barely polarized (where the bias matters)
     t0 = time.perf_counter()
+    stokes_noise = noise_scale * pk.noise
     has = np.isfinite(theta_peak)
     d0 = np.full(theta_peak.shape, np.nan)
     if has.any():
-        dc, n2c, _ = _order_candidates(theta_peak[has], pk.wavelength_nm[has], [n2], 1.5 * MAX_THICKNESS_NM)
-        e = _sm.grid_sse(spectra[has], theta_peak[has], dc, n2c, n3, wl)
-        d0[has] = dc[np.arange(dc.shape[0]), np.argmin(e, axis=1)]
+        d0[has] = initial_thickness(spectra[has], theta_peak[has], pk.wavelength_nm[has], n2, n3, wl)
     th0 = np.where(has, theta_peak, 0.0)
     # pixels with a peak first; their thickness seeds the others
     th_fit = np.zeros_like(th0)
@@ -491,7 +513,7 @@ def reconstruct_eikonal(cube, wavelengths_nm, substrate_ior, mask, smoothness=10
     sig = np.full_like(th0, np.inf)
     if has.any():
         th_fit[has], d_fit[has], sse[has], sig[has] = fit_angle_thickness(
-            spectra[has], th0[has], d0[has], n2, n3, wl)
+            spectra[has], th0[has], d0[has], n2, n3, wl, stokes_noise=stokes_noise[has])
     none = ~has
     if none.any():
         img_d = np.full(mask.shape, np.nan)
@@ -504,15 +526,22 @@ def reconstruct_eikonal(cube, wavelengths_nm, substrate_ior, mask, smoothness=10
             guess = np.full(int(none.sum()), 400.0)
         tg, dg = _init_no_peak(spectra[none], n2, n3, wl, guess)
         th_fit[none], d_fit[none], sse[none], sig[none] = fit_angle_thickness(
-            spectra[none], tg, dg, n2, n3, wl)
+            spectra[none], tg, dg, n2, n3, wl, stokes_noise=stokes_noise[none])
     t["fit_angle_thickness"] = time.perf_counter() - t0
 
     # 3. the surface as a whole
     t0 = time.perf_counter()
     theta_img = np.zeros(mask.shape)
     theta_img[mask] = th_fit
+    # precision of each pixel's angle: the fit's own, and the conditioning of the peak
+    # reflectance in θ (flat at normal incidence) at the pixel's noise level, which also covers
+    # the noise bias of S0 + sqrt(S1² + S2²) where the light is barely polarized
+    h = np.radians(0.05)
+    slope_R = np.abs(_sm.peak_reflectance(th_fit + h, n3) - _sm.peak_reflectance(np.maximum(th_fit - h, 0), n3)) \
+        / (th_fit + h - np.maximum(th_fit - h, 0))
+    sig_cond = condition_scale * pk.noise / np.maximum(slope_R, 1e-12)
     sig_img = np.full(mask.shape, np.inf)
-    sig_img[mask] = np.maximum(sig, np.radians(angle_floor_deg))
+    sig_img[mask] = np.maximum(np.hypot(sig, sig_cond), np.radians(angle_floor_deg))
     slope = np.tan(theta_img)
     sig_slope = sig_img / np.cos(np.minimum(theta_img, np.radians(89.0))) ** 2
     weight = np.where(mask, 1.0 / sig_slope ** 2, 0.0)
@@ -538,7 +567,7 @@ def reconstruct_eikonal(cube, wavelengths_nm, substrate_ior, mask, smoothness=10
     # 4. thickness at the final angle
     t0 = time.perf_counter()
     _, d_fin, sse_fin, _ = fit_angle_thickness(spectra, theta_fin[mask], d_fit, n2, n3, wl,
-                                               iterations=6, fit_theta=False)
+                                               iterations=6, fit_theta=False, stokes_noise=stokes_noise)
     t["thickness"] = time.perf_counter() - t0
     thickness = np.full(mask.shape, np.nan)
     thickness[mask] = d_fin
@@ -556,6 +585,8 @@ METHODS = {
     "published": reconstruct_kobayashi,
 }
 DEFAULT_METHOD = "eikonal"
+#: the paper's method as published
+PAPER_METHOD = "kobayashi"
 
 
 def reconstruct_spectral(cube, wavelengths_nm, substrate_ior, mask=None, method=None):

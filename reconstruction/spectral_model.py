@@ -43,11 +43,27 @@ def drjit_available() -> bool:
         return False
 
 
-def _np_rs(theta, d, n2, n3, wl):
-    return optics.reflectances(np.cos(theta)[:, None], wl[None, :], d[:, None], n2[:, None], n3)[0]
+def _measured(R_s, R_p, sigma2, sqrt):
+    """Expected ``S0 + sqrt(S1² + S2²)`` of a rotating-polarizer capture.
+
+    ``S0 = (R_s + R_p)/2``; ``|(S1, S2)|`` has the Rice distribution of the true linear part
+    ``b = (R_s - R_p)/2`` with Gaussian noise of variance ``sigma2`` per component, whose mean
+    ``sqrt(b² + (π/2) σ²)`` approximates within 0.09 σ (exact at ``b = 0`` and for ``b >> σ``).
+    Without noise this is ``R_s``.
+    """
+    b = 0.5 * (R_s - R_p)
+    return 0.5 * (R_s + R_p) + sqrt(b * b + (0.5 * np.pi) * sigma2)
 
 
-def rs_spectra(theta_rad, thickness_nm, film_ior, substrate_ior, wavelengths_nm, jac=()):
+def _np_rs(theta, d, n2, n3, wl, sig2=None):
+    R_s, R_p = optics.reflectances(np.cos(theta)[:, None], wl[None, :], d[:, None], n2[:, None], n3)
+    if sig2 is None:
+        return R_s
+    return _measured(R_s, R_p, sig2[:, None], np.sqrt)
+
+
+def rs_spectra(theta_rad, thickness_nm, film_ior, substrate_ior, wavelengths_nm, jac=(),
+               stokes_noise=None):
     """s reflectance spectra of N pixels and, optionally, their partial derivatives.
 
     Parameters
@@ -61,6 +77,10 @@ def rs_spectra(theta_rad, thickness_nm, film_ior, substrate_ior, wavelengths_nm,
     wavelengths_nm : (B,) array_like
     jac : tuple of str
         Any of ``"theta"``, ``"thickness"``, ``"film_ior"``: derivatives to return.
+    stokes_noise : (N,) array_like, optional
+        Noise (standard deviation) of the measured S1 and S2 per pixel. When given, the model is
+        the expectation of the measured ``S0 + sqrt(S1² + S2²)`` (see :func:`_measured`), which
+        near normal incidence, where the light is barely polarized, sits above ``R_s``.
 
     Returns
     -------
@@ -71,31 +91,34 @@ def rs_spectra(theta_rad, thickness_nm, film_ior, substrate_ior, wavelengths_nm,
     n2 = np.broadcast_to(np.asarray(film_ior, dtype=np.float64), theta.shape).ravel()
     wl = np.ascontiguousarray(wavelengths_nm, dtype=np.float64).ravel()
     n, b = theta.size, wl.size
+    sig2 = None if stokes_noise is None else np.broadcast_to(
+        np.asarray(stokes_noise, dtype=np.float64) ** 2, theta.shape).ravel()
     outs = [np.empty((n, b)) for _ in range(1 + len(jac))]
     rows = max(1, _CHUNK // max(b, 1))
     use_dr = drjit_available()
     for s in range(0, n, rows):
         e = min(n, s + rows)
-        parts = (_dr_chunk if use_dr else _np_chunk)(theta[s:e], d[s:e], n2[s:e], float(substrate_ior), wl, jac)
+        parts = (_dr_chunk if use_dr else _np_chunk)(theta[s:e], d[s:e], n2[s:e], float(substrate_ior), wl, jac,
+                                                     None if sig2 is None else sig2[s:e])
         for o, p in zip(outs, parts):
             o[s:e] = p
     return outs[0] if not jac else tuple(outs)
 
 
-def _np_chunk(theta, d, n2, n3, wl, jac):
-    out = [_np_rs(theta, d, n2, n3, wl)]
+def _np_chunk(theta, d, n2, n3, wl, jac, sig2=None):
+    out = [_np_rs(theta, d, n2, n3, wl, sig2)]
     steps = {"theta": 1e-6, "thickness": 1e-4, "film_ior": 1e-6}
     for name in jac:
         h = steps[name]
         args = {"theta": theta, "thickness": d, "film_ior": n2}
         hi = dict(args, **{name: args[name] + h})
         lo = dict(args, **{name: args[name] - h})
-        out.append((_np_rs(hi["theta"], hi["thickness"], hi["film_ior"], n3, wl)
-                    - _np_rs(lo["theta"], lo["thickness"], lo["film_ior"], n3, wl)) / (2 * h))
+        out.append((_np_rs(hi["theta"], hi["thickness"], hi["film_ior"], n3, wl, sig2)
+                    - _np_rs(lo["theta"], lo["thickness"], lo["film_ior"], n3, wl, sig2)) / (2 * h))
     return out
 
 
-def _dr_chunk(theta, d, n2, n3, wl, jac):
+def _dr_chunk(theta, d, n2, n3, wl, jac, sig2=None):
     import drjit as dr
     from drjit.llvm.ad import Float64
 
@@ -107,7 +130,8 @@ def _dr_chunk(theta, d, n2, n3, wl, jac):
     var = {"theta": T, "thickness": D, "film_ior": N2}
     for name in jac:
         dr.enable_grad(var[name])
-    R = optics.reflectances(dr.cos(T), W, D, N2, n3)[0]
+    R_s, R_p = optics.reflectances(dr.cos(T), W, D, N2, n3)
+    R = R_s if sig2 is None else _measured(R_s, R_p, dr.repeat(Float64(sig2), b), dr.sqrt)
     out = [R.numpy().reshape(n, b)]
     for name in jac:
         # keep the graph's edges so that the next pass can reuse them
