@@ -1,0 +1,196 @@
+"""Object masks from captures or files, occluding-boundary directions, and the resolution of
+the 180° azimuth ambiguity of polarization by propagation from the boundary.
+
+Everything here uses only the captured data (no ground truth), so it works on real captures.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from thinfilm.errors import UserError
+
+__all__ = ["mask_from_intensity", "read_mask_file", "outward_directions", "resolve_azimuth"]
+
+
+def mask_from_intensity(intensity, min_pixels: int = 16):
+    """Object mask of a capture against a dark background.
+
+    The threshold is Otsu's on ``log10(intensity)``: the background of a specular object in a
+    dark surround sits orders of magnitude below the object. When the image holds no dark
+    background (the two classes lie less than a factor 10 apart) every pixel with a positive
+    value is kept. Connected parts smaller than ``min_pixels`` are dropped.
+
+    Parameters
+    ----------
+    intensity : (H, W) non-negative image, e.g. the mean of the RGB channels of S0.
+
+    Returns
+    -------
+    (H, W) bool
+    """
+    from scipy import ndimage
+
+    v = np.asarray(intensity, dtype=np.float64)
+    pos = v > 0
+    if pos.sum() < min_pixels:
+        return np.zeros(v.shape, dtype=bool)
+    floor = max(np.percentile(v[pos], 0.1) * 1e-2, 1e-9)
+    lv = np.log10(np.maximum(v, floor))
+    t = _otsu(lv.ravel())
+    lo, hi = lv[lv <= t], lv[lv > t]
+    if lo.size == 0 or hi.size == 0 or np.median(hi) - np.median(lo) < 1.0:
+        mask = pos
+    else:
+        mask = lv > t
+    labels, count = ndimage.label(mask)
+    if count:
+        sizes = ndimage.sum(mask, labels, index=np.arange(1, count + 1))
+        keep = np.zeros(count + 1, dtype=bool)
+        keep[1:] = sizes >= min_pixels
+        mask = keep[labels]
+    return mask
+
+
+def _otsu(values, bins: int = 256):
+    hist, edges = np.histogram(values, bins=bins)
+    centers = 0.5 * (edges[:-1] + edges[1:])
+    w0 = np.cumsum(hist)
+    w1 = w0[-1] - w0
+    m0 = np.cumsum(hist * centers)
+    mu0 = m0 / np.maximum(w0, 1)
+    mu1 = (m0[-1] - m0) / np.maximum(w1, 1)
+    between = w0 * w1 * (mu0 - mu1) ** 2
+    return centers[int(np.argmax(between))]
+
+
+def read_mask_file(path, shape):
+    """Read a mask image (EXR, PNG, or ``.npy``; non-zero on the object) of the given shape."""
+    p = Path(path)
+    if not p.is_file():
+        raise UserError(f"{p}: mask file not found")
+    suffix = p.suffix.lower()
+    try:
+        if suffix == ".exr":
+            from thinfilm.dataset import read_exr
+
+            ch = read_exr(p)
+            name = "mask" if "mask" in ch else sorted(ch)[0]
+            m = ch[name]
+        elif suffix == ".npy":
+            m = np.load(p)
+        else:
+            import matplotlib.image as mpimg
+
+            m = mpimg.imread(str(p))
+    except UserError:
+        raise
+    except Exception as e:
+        raise UserError(f"{p}: cannot read the mask image ({e})") from None
+    m = np.asarray(m, dtype=np.float64)
+    if m.ndim == 3:
+        m = m[..., :3].max(axis=-1) if m.shape[-1] >= 3 else m[..., 0]
+    if m.shape != tuple(shape):
+        raise UserError(f"{p}: mask has shape {m.shape}, expected the captures' {tuple(shape)}")
+    return m > 0
+
+
+def outward_directions(mask, smooth_px: float = 1.5):
+    """Unit vectors (H, W, 2), in the (x right, y up) frame, pointing out of the mask: the
+    negated gradient of the smoothed inside distance to the mask's edge."""
+    from scipy import ndimage
+
+    dist = ndimage.distance_transform_edt(mask)
+    dist = ndimage.gaussian_filter(dist, smooth_px)
+    gy, gx = np.gradient(dist)           # along rows (down) and columns (right)
+    out = np.stack([-gx, gy], axis=-1)   # -∇d with y up: rows grow downwards
+    norm = np.linalg.norm(out, axis=-1, keepdims=True)
+    return np.where(norm > 1e-12, out / np.maximum(norm, 1e-12), 0.0)
+
+
+def resolve_azimuth(azimuth_deg, zenith_deg, mask, confidence=None, seed_band_px: float = 2.0,
+                    min_alignment: float = 0.5, window: int = 2):
+    """Pick φ or φ + 180° per pixel: outwards at the occluding boundary, then inwards by
+    agreement with the already-resolved neighbours (the paper's Sec. 4.3).
+
+    1. Seeds: mask pixels within ``seed_band_px`` of the edge whose polarization direction is
+       aligned with the edge's outward direction (|cos| >= ``min_alignment``; pixels where the
+       edge is not an occluding contour, such as the cut ends of a cylinder, are skipped).
+       Their normals are made to point outwards.
+    2. Propagation, most confident pixels first (a priority flood; confidence = sin θ times
+       ``confidence``): the next pixel of the resolved set's frontier takes the candidate whose
+       direction agrees with the weighted mean of the resolved normals' image-plane components
+       in a (2 ``window`` + 1)² neighbourhood. Low-confidence regions (near normal incidence,
+       where the azimuth is mostly noise) are thus entered last and cannot carry a wrong sign
+       into well-determined regions.
+
+    Parameters
+    ----------
+    azimuth_deg : (H, W) azimuth modulo 180°.
+    zenith_deg : (H, W) zenith (weights: sin θ, the length of the normal's image-plane part).
+    mask : (H, W) bool.
+    confidence : optional (H, W) extra weights.
+
+    Returns
+    -------
+    (H, W) azimuth in [0, 360); NaN outside the mask.
+    """
+    import heapq
+
+    from scipy import ndimage
+
+    mask = np.asarray(mask, dtype=bool)
+    H, W = mask.shape
+    phi = np.radians(np.nan_to_num(np.asarray(azimuth_deg, dtype=np.float64)))
+    d = np.stack([np.cos(phi), np.sin(phi)], axis=-1)
+    wgt = np.sin(np.radians(np.nan_to_num(np.asarray(zenith_deg, dtype=np.float64))))
+    if confidence is not None:
+        wgt = wgt * np.nan_to_num(np.asarray(confidence, dtype=np.float64))
+    wgt = np.where(mask, np.maximum(wgt, 1e-9), 0.0)
+    sign = np.zeros((H, W))
+
+    out_dir = outward_directions(mask)
+    dist = ndimage.distance_transform_edt(mask)
+    align = np.sum(d * out_dir, axis=-1)
+    band = mask & (dist <= seed_band_px)
+    seeds = band & (np.abs(align) >= min_alignment)
+    if seeds.any():
+        # Keep the confident half of the aligned edge pixels.
+        seeds &= wgt >= np.median(wgt[seeds]) * 0.5
+    labels, count = ndimage.label(mask)
+    for part in range(1, count + 1):  # every part of the mask needs seeds
+        inside = labels == part
+        if not (seeds & inside).any():
+            seeds |= band & inside
+    sign[seeds] = np.where(align[seeds] >= 0, 1.0, -1.0)
+
+    resolved = seeds.copy()
+    vx = np.where(resolved, sign * wgt * d[..., 0], 0.0)
+    vy = np.where(resolved, sign * wgt * d[..., 1], 0.0)
+    queued = resolved.copy()
+    heap = []
+    offsets = [(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx]
+
+    def push_neighbours(r, c):
+        for dy, dx in offsets:
+            rr, cc = r + dy, c + dx
+            if 0 <= rr < H and 0 <= cc < W and mask[rr, cc] and not queued[rr, cc]:
+                queued[rr, cc] = True
+                heapq.heappush(heap, (-wgt[rr, cc], rr * W + cc))
+
+    for r, c in zip(*np.nonzero(seeds)):
+        push_neighbours(r, c)
+    while heap:
+        _, k = heapq.heappop(heap)
+        r, c = divmod(k, W)
+        r0, r1, c0, c1 = max(r - window, 0), min(r + window + 1, H), max(c - window, 0), min(c + window + 1, W)
+        agree = d[r, c, 0] * vx[r0:r1, c0:c1].sum() + d[r, c, 1] * vy[r0:r1, c0:c1].sum()
+        s = 1.0 if (agree > 0 or (agree == 0 and align[r, c] >= 0)) else -1.0
+        sign[r, c] = s
+        vx[r, c] = s * wgt[r, c] * d[r, c, 0]
+        vy[r, c] = s * wgt[r, c] * d[r, c, 1]
+        push_neighbours(r, c)
+    az = np.where(sign < 0, phi + np.pi, phi)
+    return np.where(mask, np.mod(np.degrees(az), 360.0), np.nan)
