@@ -2,7 +2,8 @@
 
 Conventions (``DESIGN.md``): orthographic camera looking along -z with image x to the
 right and y up, row 0 at the top; one ray per pixel through its centre. The object is
-centred in a square image and its larger projected extent fills ``rig.fill`` of it.
+centred in a square image (meshes: offset by a fraction of a pixel, see :func:`frame_for`)
+and its larger projected extent fills ``rig.fill`` of it.
 
 Shapes
 ------
@@ -194,13 +195,22 @@ def _geometry(shape: dict):
             (lo[0], hi[0], lo[1], hi[1]), float(lo[2]), float(hi[2]), rim)
 
 
-def frame_for(extent, zmin, zmax, rim, resolution, fill) -> Frame:
-    """The camera frame that centres ``extent`` and lets its larger side fill ``fill``."""
+def frame_for(extent, zmin, zmax, rim, resolution, fill, offset_px=(0.0, 0.0)) -> Frame:
+    """The camera frame that centres ``extent`` and lets its larger side fill ``fill``.
+
+    ``offset_px`` shifts the object by that fraction of a pixel (x, y) from the image centre.
+    Meshes use (1/4, 1/8): then no pixel centre lies exactly on a face edge through the
+    object's centre along x, y or a diagonal (as the pyramid's are), where a ray hits two
+    faces at the same distance and the choice between them is arbitrary.
+    """
     xmin, xmax, ymin, ymax = (float(v) for v in extent)
     half = 0.5 * max(xmax - xmin, ymax - ymin) / fill
     depth_range = max(zmax - zmin, 0.0)
     camera_z = zmax + half
-    return Frame(cx=0.5 * (xmin + xmax), cy=0.5 * (ymin + ymax), half_width=half, camera_z=camera_z,
+    pixel = 2.0 * half / int(resolution)
+    cx = 0.5 * (xmin + xmax) - offset_px[0] * pixel
+    cy = 0.5 * (ymin + ymax) - offset_px[1] * pixel
+    return Frame(cx=cx, cy=cy, half_width=half, camera_z=camera_z,
                  far_clip=10.0 * (depth_range + 2 * half), resolution=int(resolution),
                  object_extent=(xmin, xmax, ymin, ymax),
                  object_center=(0.5 * (xmin + xmax), 0.5 * (ymin + ymax)), rim_radius=float(rim))
@@ -380,7 +390,8 @@ def build_scene_dict(spec: dict):
     """
     register_plugins()
     kind, geo, extent, zmin, zmax, rim = _geometry(spec["shape"])
-    frame = frame_for(extent, zmin, zmax, rim, spec["rig"]["resolution"], spec["rig"]["fill"])
+    frame = frame_for(extent, zmin, zmax, rim, spec["rig"]["resolution"], spec["rig"]["fill"],
+                      offset_px=(0.25, 0.125) if kind == "mesh" else (0.0, 0.0))
     thickness = thickness_map(spec["film"]["thickness"], frame)
     bsdf = _bsdf_dict(spec["film"]["ior"], spec["substrate"]["ior"], spec["substrate"]["k"],
                       _thickness_param(thickness, frame))
