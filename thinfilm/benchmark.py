@@ -120,9 +120,10 @@ def _selected_methods(kind: str) -> dict:
 # -- steps -------------------------------------------------------------------------------------
 
 def _generate(preset: str, resolution, out: Path) -> None:
-    from thinfilm.generators.generate import generate_dataset
+    from thinfilm.generators.generate import generate_dataset, set_variant
     from thinfilm.generators.spec import load_spec
 
+    set_variant()
     spec = load_spec(preset, resolution=resolution)
     generate_dataset(spec, out, progress=False)
 
