@@ -18,7 +18,9 @@ Shapes
 ``mesh``
     Any file trimesh loads, scaled, rotated (x, y, z Euler angles, degrees), centred in x, y
     and lowered so that its lowest point is at z = 0; smooth shading normals (trimesh's
-    vertex normals) unless ``smooth = false``.
+    vertex normals) unless ``smooth = false``. Closed meshes get outward normals, open ones
+    are turned to face the camera. Surfaces seen from behind (shading normal n_z <= 0) render
+    black and are left out of the mask.
 
 Ground truth is obtained by casting exactly the camera's pixel-centre rays into the same
 scene (:func:`cast_ground_truth`): the normal is the shading normal ``si.sh_frame.n`` the
@@ -159,9 +161,10 @@ def _load_mesh(shape: dict):
     lo, hi = mesh.bounds
     mesh.apply_translation([-(lo[0] + hi[0]) / 2, -(lo[1] + hi[1]) / 2, -lo[2]])
     if mesh.is_watertight:
-        mesh.fix_normals()
-    # Orient the surface so that most of the area seen from the camera faces it.
-    if np.sum(mesh.area_faces * mesh.face_normals[:, 2]) < 0:
+        mesh.fix_normals()  # consistent winding, normals pointing out of the solid
+    elif np.sum(mesh.area_faces * mesh.face_normals[:, 2]) < -1e-9 * mesh.area:
+        # An open surface (a sheet, a relief): orient it so that most of its projected
+        # area faces the camera.
         mesh.invert()
     if shape["smooth"]:
         return (np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int64),

@@ -150,6 +150,11 @@ def _apply_override(spec: dict, item: str) -> None:
             raise UserError(f"--set {item!r}: '{'.'.join(parts[:i + 1])}' is not a table")
         node = child
     last = parts[-1]
+    # A relative file named on the command line is relative to the current folder.
+    if isinstance(value, str) and (last == "path" or (last in ("camera", "illuminant")
+                                                      and value.lower().endswith(".csv"))):
+        path = Path(value).expanduser()
+        value = str(path if path.is_absolute() else Path.cwd() / path)
     # Switching the shape kind or the thickness profile drops the keys of the old one.
     if parts == ["shape", "kind"] and node.get("kind") != value:
         node.clear()
