@@ -227,7 +227,7 @@ def _difference_operators(index, m):
     return gx, gy
 
 
-def refine_height(z0, slope, weight, mask, smoothness=1.0, iterations=6, slope_cap=None):
+def refine_height(z0, slope, weight, mask, smoothness=1.0, iterations=3, slope_cap=None):
     """Weighted Gauss-Newton refinement of a height field towards ``|∇z| = slope``.
 
     Minimises ``Σ_i w_i (|∇z|_i - s_i)² + smoothness Σ_i |∇²z|_i²`` over the mask, linearising
@@ -277,7 +277,7 @@ def refine_height(z0, slope, weight, mask, smoothness=1.0, iterations=6, slope_c
         J = sp.diags(ux) @ Gx + sp.diags(uy) @ Gy
         W = sp.diags(wv)
         A = (J.T @ W @ J + LtL).tocsc()
-        z = spsolve(A, J.T @ (wv * sv))
+        z = spsolve(A, J.T @ (wv * sv), permc_spec="MMD_AT_PLUS_A")
         z -= z.max()
     out = np.full(m.shape, np.nan)
     out[m] = z

@@ -251,57 +251,55 @@ def fit_angle_thickness(spectra, theta0, thickness0, film_ior, substrate_ior, wa
     d = np.array(thickness0, dtype=np.float64)
     n, b = S.shape
     lam = np.full(n, 1e-3)
-    active = np.ones(n, dtype=bool)
     jac = ("theta", "thickness") if fit_theta else ("thickness",)
     th_max = np.radians(theta_max_deg)
-    sse = np.full(n, np.inf)
-    A = np.zeros((n, 2, 2))
     noise = None if stokes_noise is None else np.broadcast_to(np.asarray(stokes_noise, float), (n,))
+
+    def evaluate(idx, th_, d_):
+        nz = None if noise is None else noise[idx]
+        out = _sm.rs_spectra(th_, d_, film_ior, substrate_ior, wl, jac=jac, stokes_noise=nz)
+        r = S[idx] - out[0]
+        Jt = out[1] if fit_theta else np.zeros_like(r)
+        Jd = out[-1]
+        dot = lambda x, y: np.einsum("ij,ij->i", x, y)  # noqa: E731
+        # normal equations and gradient per pixel: [a11 a12 a22 g1 g2 sse]
+        return np.stack([dot(Jt, Jt), dot(Jt, Jd), dot(Jd, Jd), dot(Jt, r), dot(Jd, r), dot(r, r)], -1)
+
+    # Levenberg-Marquardt; each iteration evaluates the model and its Jacobian once, at the
+    # trial point (kept when the residual drops, else the damping grows)
+    cur = np.empty((n, 6))
+    cur[:] = evaluate(np.arange(n), th, d)
+    active = np.ones(n, dtype=bool)
     for _ in range(iterations):
         idx = np.nonzero(active)[0]
         if idx.size == 0:
             break
-        nz = None if noise is None else noise[idx]
-        out = _sm.rs_spectra(th[idx], d[idx], film_ior, substrate_ior, wl, jac=jac, stokes_noise=nz)
-        R, J = out[0], out[1:]
-        r = S[idx] - R
-        e0 = np.einsum("ij,ij->i", r, r)
-        sse[idx] = e0
+        a11, a12, a22, g1, g2, e0 = cur[idx].T
+        l = lam[idx]
         if fit_theta:
-            Jt, Jd = J
-            a11 = np.einsum("ij,ij->i", Jt, Jt)
-            a12 = np.einsum("ij,ij->i", Jt, Jd)
-            a22 = np.einsum("ij,ij->i", Jd, Jd)
-            g1 = np.einsum("ij,ij->i", Jt, r)
-            g2 = np.einsum("ij,ij->i", Jd, r)
-            A[idx] = np.stack([np.stack([a11, a12], -1), np.stack([a12, a22], -1)], -2)
-            l = lam[idx]
             b11, b22 = a11 * (1 + l) + 1e-18, a22 * (1 + l) + 1e-18
             det = b11 * b22 - a12 * a12
             dt = (b22 * g1 - a12 * g2) / det
             dd = (b11 * g2 - a12 * g1) / det
         else:
-            (Jd,) = J
-            a22 = np.einsum("ij,ij->i", Jd, Jd)
-            g2 = np.einsum("ij,ij->i", Jd, r)
-            A[idx, 1, 1] = a22
-            dd = g2 / (a22 * (1 + lam[idx]) + 1e-18)
+            dd = g2 / (a22 * (1 + l) + 1e-18)
             dt = np.zeros_like(dd)
-        # keep steps of d within a quarter period at the shortest wavelength (avoid order jumps)
+        # steps of d within a quarter period at the shortest wavelength (no order jumps)
         dd = np.clip(dd, -40.0, 40.0)
         dt = np.clip(dt, -0.2, 0.2)
         th_new = np.clip(np.abs(th[idx] + dt), 0.0, th_max)
         d_new = np.maximum(d[idx] + dd, 0.0)
-        R2 = _sm.rs_spectra(th_new, d_new, film_ior, substrate_ior, wl, stokes_noise=nz)
-        r2 = S[idx] - R2
-        e1 = np.einsum("ij,ij->i", r2, r2)
-        better = e1 < e0
+        new = evaluate(idx, th_new, d_new)
+        better = new[:, 5] < e0
         th[idx] = np.where(better, th_new, th[idx])
         d[idx] = np.where(better, d_new, d[idx])
-        sse[idx] = np.where(better, e1, e0)
-        lam[idx] = np.where(better, lam[idx] / 3.0, lam[idx] * 5.0)
+        cur[idx] = np.where(better[:, None], new, cur[idx])
+        lam[idx] = np.where(better, l / 3.0, l * 5.0)
         small = (np.abs(dd) < 1e-3) & (np.abs(dt) < 1e-6)
         active[idx] = ~(small & better) & (lam[idx] < 1e8)
+    sse = cur[:, 5]
+    A = np.zeros((n, 2, 2))
+    A[:, 0, 0], A[:, 0, 1], A[:, 1, 0], A[:, 1, 1] = cur[:, 0], cur[:, 1], cur[:, 1], cur[:, 2]
     var = sse / max(b - (2 if fit_theta else 1), 1)
     det = A[:, 0, 0] * A[:, 1, 1] - A[:, 0, 1] ** 2
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -458,9 +456,10 @@ def reconstruct_kobayashi(cube, wavelengths_nm, substrate_ior, mask):
 
 
 def _init_no_peak(S, n2, n3, wl, d_guess):
-    """Coarse (θ, d) grid for pixels without a peak: θ in 1.5° steps, d ± 60 nm around a guess."""
-    thetas = np.radians(np.arange(0.0, 89.0, 1.5))
-    offs = np.arange(-60.0, 60.1, 5.0)
+    """Coarse (θ, d) grid for pixels without a peak: θ in 3° steps, d ± 60 nm (15 nm steps)
+    around a guess; Levenberg-Marquardt refines from there."""
+    thetas = np.radians(np.arange(0.0, 89.0, 3.0))
+    offs = np.arange(-60.0, 60.1, 15.0)
     n = S.shape[0]
     best_t = np.zeros(n)
     best_d = np.array(d_guess, dtype=np.float64)
