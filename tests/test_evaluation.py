@@ -343,3 +343,18 @@ def test_ground_truth_round_trip_on_generated_preset(mono_polarized, tmp_path, p
     assert m["delta_e_ab"]["max"] <= 0.1
     assert m["spectral_rmse"]["max"] <= 1e-4
     assert gt["mask"].sum() > 100
+
+
+def test_dataset_without_ground_truth_scores_appearance_only(mono_polarized, tmp_path):
+    from thinfilm.reconstruction.estimate import write_estimate
+
+    root, n, mask, thick, _ = write_synthetic_dataset(tmp_path / "ds", size=12, parts=("spectral_s",))
+    (root / "ground_truth.exr").unlink()  # a capture of a real object: no truth
+    write_estimate(tmp_path / "est", n, thick, mask, dict(INFO))
+    r = ev.evaluate(root, tmp_path / "est", tmp_path / "out")
+    m = r["metrics"]
+    assert m["normal_error_deg"]["mean"] is None and m["thickness_error_nm"]["mean"] is None
+    assert m["delta_e_ab"]["max"] <= 0.1
+    assert r["info"]["scored_pixels"] == int(mask.sum())
+    assert (tmp_path / "out" / "appearance.png").is_file()
+    assert not (tmp_path / "out" / "normals.png").exists()
