@@ -80,23 +80,31 @@ def simulate(spec: dict, progress: bool = False) -> dict:
     t2 = time.perf_counter()
 
     mask = gt["mask"]
-    rng = np.random.default_rng(spec["seed"])
-    rgb_exact, spectral_exact = captures_from_stokes(stokes, wl, rig)
     angles = [int(a) for a in rig["polarizer_angles_deg"]]
+    # One generator per image stack (RGB, then each angle of the hyperspectral camera),
+    # spawned in a fixed order: reproducible whatever order the stacks are processed in.
+    rngs = [np.random.default_rng(s) for s in np.random.SeedSequence(spec["seed"]).spawn(1 + len(angles))]
+    rgb_exact, spectral_exact = captures_from_stokes(stokes, wl, rig)
     rgb_stack = np.stack([rgb_exact[int(a) % 360] for a in angles])
-    rgb_noisy = apply_camera_noise(rgb_stack, mask, noise, rng)
+    rgb_noisy = apply_camera_noise(rgb_stack, mask, noise, rngs[0])
     polarized_rgb = {int(a) % 360: rgb_noisy[i] for i, a in enumerate(angles)}
 
     if noise["model"] == "none":
         measured, spectral_s = stokes, spectral_exact
     else:
         # Hyperspectral camera behind a rotating polarizer: one noisy image per band and angle.
+        from concurrent.futures import ThreadPoolExecutor
+
+        def shoot(i):
+            frames = np.moveaxis(polarizer_intensity(stokes, angles[i]), -1, 0)  # (B, H, W) view
+            return np.moveaxis(apply_camera_noise(frames, mask, noise, rngs[1 + i]), 0, -1)
+
         fit = np.linalg.pinv(_stokes_design(angles))  # (3, A)
         acc = np.zeros((3,) + stokes["S0"].shape)
-        for i, a in enumerate(angles):
-            frames = np.moveaxis(polarizer_intensity(stokes, a), -1, 0)  # (B, H, W)
-            noisy = np.moveaxis(apply_camera_noise(frames, mask, noise, rng), 0, -1)
-            acc += fit[:, i, None, None, None] * noisy[None]
+        with ThreadPoolExecutor(max_workers=2) as pool:  # NumPy's generators release the GIL
+            for i, noisy in enumerate(pool.map(shoot, range(len(angles)))):
+                for s in range(3):
+                    acc[s] += fit[s, i] * noisy
         measured = {"S0": acc[0], "S1": acc[1], "S2": acc[2]}
         spectral_s = measured["S0"] + np.hypot(measured["S1"], measured["S2"])
     t3 = time.perf_counter()

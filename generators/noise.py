@@ -10,8 +10,9 @@ careful experimenter sets each band and each polarizer angle); a number fixes g.
 - stored     x' = DN · full_well / (2^bits − 1) / g              (reflectance units)
 
 so the stored images keep the noise of the exposure they were taken at. Model ``none``
-returns the exact images. Random numbers come from one ``numpy.random.Generator`` seeded
-with the spec's seed and are drawn in a fixed order, so results are reproducible.
+returns the exact images. Random numbers come from ``numpy.random.Generator`` objects
+spawned in a fixed order from the spec's seed (one per image stack), so results are
+reproducible.
 """
 
 from __future__ import annotations
@@ -71,8 +72,15 @@ def apply_camera_noise(images: np.ndarray, mask: np.ndarray, noise: dict,
     gains = exposure_gains(images, mask, noise).reshape((-1,) + (1,) * (images.ndim - 1))
     full_well = float(noise["full_well"])
     levels = float(2 ** int(noise["bits"]) - 1)
-    electrons = rng.poisson(np.clip(images, 0.0, None) * gains).astype(np.float64)
+    expected = np.clip(images, 0.0, None)
+    expected *= gains
+    out = rng.poisson(expected).astype(np.float64)
+    del expected
     if noise["read_noise"] > 0:
-        electrons += rng.normal(0.0, float(noise["read_noise"]), size=images.shape)
-    dn = np.clip(np.rint(electrons * (levels / full_well)), 0.0, levels)
-    return dn * (full_well / levels) / gains
+        out += rng.normal(0.0, float(noise["read_noise"]), size=images.shape)
+    out *= levels / full_well
+    np.rint(out, out=out)
+    np.clip(out, 0.0, levels, out=out)
+    out *= full_well / levels
+    out /= gains
+    return out
