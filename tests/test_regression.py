@@ -25,35 +25,35 @@ RESOLUTION = 48
 # "measured": the scores when the limits were set (48 px, default noise, seed 0).
 LIMITS = {
     ('hemisphere', 'rgb', 'kobayashi2023'): {
-        "normal_error_deg": 3.0, "thickness_error_nm": 114.9, "delta_e_ab": 9.3, "film_ior_error": 0.005, "coverage": 0.95,
-        "measured": {"normal_error_deg": 1.6411, "thickness_error_nm": 75.9244, "delta_e_ab": 6.063, "film_ior_error": 0.0, "coverage": 1.0}},
+        "normal_error_deg": 3.0, "thickness_error_nm": 114.8, "delta_e_ab": 9.27, "film_ior_error": 0.005, "coverage": 0.95,
+        "measured": {"normal_error_deg": 1.6333, "thickness_error_nm": 75.8535, "delta_e_ab": 6.0412, "film_ior_error": 0.0, "coverage": 1.0}},
     ('hemisphere', 'rgb', 'coherent'): {
-        "normal_error_deg": 1.5, "thickness_error_nm": 3.1, "delta_e_ab": 1.74, "film_ior_error": 0.005, "coverage": 0.95,
-        "measured": {"normal_error_deg": 0.665, "thickness_error_nm": 1.3573, "delta_e_ab": 1.0205, "film_ior_error": 0.0, "coverage": 1.0}},
+        "normal_error_deg": 1.5, "thickness_error_nm": 3.0, "delta_e_ab": 1.69, "film_ior_error": 0.005, "coverage": 0.95,
+        "measured": {"normal_error_deg": 0.6578, "thickness_error_nm": 1.2986, "delta_e_ab": 0.9923, "film_ior_error": 0.0, "coverage": 1.0}},
     ('cylinder', 'rgb', 'kobayashi2023'): {
-        "normal_error_deg": 3.3, "thickness_error_nm": 47.6, "delta_e_ab": 3.32, "film_ior_error": 0.005, "coverage": 0.95,
-        "measured": {"normal_error_deg": 1.8103, "thickness_error_nm": 31.0335, "delta_e_ab": 2.0759, "film_ior_error": 0.0, "coverage": 1.0}},
+        "normal_error_deg": 3.2, "thickness_error_nm": 47.5, "delta_e_ab": 3.37, "film_ior_error": 0.005, "coverage": 0.95,
+        "measured": {"normal_error_deg": 1.7644, "thickness_error_nm": 30.9709, "delta_e_ab": 2.1094, "film_ior_error": 0.0, "coverage": 1.0}},
     ('cylinder', 'rgb', 'coherent'): {
-        "normal_error_deg": 1.9, "thickness_error_nm": 3.4, "delta_e_ab": 1.53, "film_ior_error": 0.005, "coverage": 0.95,
-        "measured": {"normal_error_deg": 0.9068, "thickness_error_nm": 1.5613, "delta_e_ab": 0.8853, "film_ior_error": 0.0, "coverage": 1.0}},
+        "normal_error_deg": 1.8, "thickness_error_nm": 3.5, "delta_e_ab": 1.56, "film_ior_error": 0.005, "coverage": 0.95,
+        "measured": {"normal_error_deg": 0.8103, "thickness_error_nm": 1.6192, "delta_e_ab": 0.9061, "film_ior_error": 0.0, "coverage": 1.0}},
     ('pyramid', 'rgb', 'kobayashi2023'): {
-        "normal_error_deg": 0.9, "thickness_error_nm": 2.2, "delta_e_ab": 0.74, "film_ior_error": 0.005, "coverage": 0.95,
-        "measured": {"normal_error_deg": 0.2501, "thickness_error_nm": 0.7953, "delta_e_ab": 0.3546, "film_ior_error": 0.0, "coverage": 1.0}},
+        "normal_error_deg": 0.9, "thickness_error_nm": 2.2, "delta_e_ab": 0.72, "film_ior_error": 0.005, "coverage": 0.95,
+        "measured": {"normal_error_deg": 0.2513, "thickness_error_nm": 0.7786, "delta_e_ab": 0.3449, "film_ior_error": 0.0, "coverage": 1.0}},
     ('pyramid', 'rgb', 'coherent'): {
-        "normal_error_deg": 0.9, "thickness_error_nm": 2.1, "delta_e_ab": 0.65, "film_ior_error": 0.005, "coverage": 0.95,
-        "measured": {"normal_error_deg": 0.228, "thickness_error_nm": 0.6806, "delta_e_ab": 0.2984, "film_ior_error": 0.0, "coverage": 1.0}},
+        "normal_error_deg": 0.9, "thickness_error_nm": 2.0, "delta_e_ab": 0.63, "film_ior_error": 0.005, "coverage": 0.95,
+        "measured": {"normal_error_deg": 0.227, "thickness_error_nm": 0.6613, "delta_e_ab": 0.2861, "film_ior_error": 0.0, "coverage": 1.0}},
     ('hemisphere', 'spectral', 'eikonal'): {
-        "normal_error_deg": 4.2, "thickness_error_nm": 4.4, "delta_e_ab": 0.76, "film_ior_error": 0.006, "coverage": 0.95,
-        "measured": {"normal_error_deg": 2.4485, "thickness_error_nm": 2.2077, "delta_e_ab": 0.3696, "film_ior_error": 0.0002, "coverage": 1.0}},
+        "normal_error_deg": 2.7, "thickness_error_nm": 3.0, "delta_e_ab": 0.74, "film_ior_error": 0.006, "coverage": 0.95,
+        "measured": {"normal_error_deg": 1.4624, "thickness_error_nm": 1.3313, "delta_e_ab": 0.3595, "film_ior_error": 0.0002, "coverage": 1.0}},
     ('hemisphere', 'spectral', 'kobayashi'): {
-        "normal_error_deg": 6.5, "thickness_error_nm": 56.7, "delta_e_ab": 21.31, "film_ior_error": 0.005, "coverage": 0.72,
-        "measured": {"normal_error_deg": 3.9928, "thickness_error_nm": 37.0792, "delta_e_ab": 14.068, "film_ior_error": 0.0, "coverage": 0.7752}},
+        "normal_error_deg": 6.6, "thickness_error_nm": 57.9, "delta_e_ab": 21.78, "film_ior_error": 0.005, "coverage": 0.74,
+        "measured": {"normal_error_deg": 4.0484, "thickness_error_nm": 37.8799, "delta_e_ab": 14.3805, "film_ior_error": 0.0, "coverage": 0.795}},
     ('cylinder', 'spectral', 'eikonal'): {
-        "normal_error_deg": 3.7, "thickness_error_nm": 2.0, "delta_e_ab": 0.74, "film_ior_error": 0.006, "coverage": 0.95,
-        "measured": {"normal_error_deg": 2.069, "thickness_error_nm": 0.6357, "delta_e_ab": 0.357, "film_ior_error": 0.0002, "coverage": 1.0}},
+        "normal_error_deg": 3.4, "thickness_error_nm": 2.0, "delta_e_ab": 0.74, "film_ior_error": 0.006, "coverage": 0.95,
+        "measured": {"normal_error_deg": 1.9308, "thickness_error_nm": 0.6424, "delta_e_ab": 0.3569, "film_ior_error": 0.0002, "coverage": 1.0}},
     ('cylinder', 'spectral', 'kobayashi'): {
-        "normal_error_deg": 5.5, "thickness_error_nm": 55.1, "delta_e_ab": 22.41, "film_ior_error": 0.005, "coverage": 0.91,
-        "measured": {"normal_error_deg": 3.3074, "thickness_error_nm": 36.0534, "delta_e_ab": 14.8054, "film_ior_error": 0.0, "coverage": 0.968}},
+        "normal_error_deg": 6.1, "thickness_error_nm": 58.4, "delta_e_ab": 23.28, "film_ior_error": 0.005, "coverage": 0.91,
+        "measured": {"normal_error_deg": 3.6794, "thickness_error_nm": 38.257, "delta_e_ab": 15.3822, "film_ior_error": 0.0, "coverage": 0.9638}},
 }
 
 SCORED = ("normal_error_deg", "thickness_error_nm", "delta_e_ab", "film_ior_error", "coverage")
