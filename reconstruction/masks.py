@@ -120,7 +120,7 @@ def resolve_azimuth(azimuth_deg, zenith_deg, mask, confidence=None, seed_band_px
        edge is not an occluding contour, such as the cut ends of a cylinder, are skipped).
        Their normals are made to point outwards.
     2. Propagation, most confident pixels first (a priority flood; confidence = sin θ times
-       ``confidence``): the next pixel of the resolved set's frontier takes the candidate whose
+       ``confidence``, in ten levels, ties taken in order of distance from the edge): the next pixel of the resolved set's frontier takes the candidate whose
        direction agrees with the weighted mean of the resolved normals' image-plane components
        in a (2 ``window`` + 1)² neighbourhood. Low-confidence regions (near normal incidence,
        where the azimuth is mostly noise) are thus entered last and cannot carry a wrong sign
@@ -166,6 +166,9 @@ def resolve_azimuth(azimuth_deg, zenith_deg, mask, confidence=None, seed_band_px
             seeds |= band & inside
     sign[seeds] = np.where(align[seeds] >= 0, 1.0, -1.0)
 
+    # Priority: confidence in coarse levels, then distance from the edge (so that pixels of
+    # equal confidence are resolved ring by ring from the boundary inwards).
+    level = np.floor(wgt / max(float(wgt.max()), 1e-12) * 10.0)
     resolved = seeds.copy()
     vx = np.where(resolved, sign * wgt * d[..., 0], 0.0)
     vy = np.where(resolved, sign * wgt * d[..., 1], 0.0)
@@ -178,12 +181,12 @@ def resolve_azimuth(azimuth_deg, zenith_deg, mask, confidence=None, seed_band_px
             rr, cc = r + dy, c + dx
             if 0 <= rr < H and 0 <= cc < W and mask[rr, cc] and not queued[rr, cc]:
                 queued[rr, cc] = True
-                heapq.heappush(heap, (-wgt[rr, cc], rr * W + cc))
+                heapq.heappush(heap, (-level[rr, cc], dist[rr, cc], rr * W + cc))
 
     for r, c in zip(*np.nonzero(seeds)):
         push_neighbours(r, c)
     while heap:
-        _, k = heapq.heappop(heap)
+        k = heapq.heappop(heap)[2]
         r, c = divmod(k, W)
         r0, r1, c0, c1 = max(r - window, 0), min(r + window + 1, H), max(c - window, 0), min(c + window + 1, W)
         agree = d[r, c, 0] * vx[r0:r1, c0:c1].sum() + d[r, c, 1] * vy[r0:r1, c0:c1].sum()

@@ -79,7 +79,7 @@ class PixelPrior:
 
 
 def build_table(model: FilmCamera, thickness_range_nm, zenith_max_deg: float = 89.0,
-                zenith_step_deg: float = 1.0, thickness_step_nm: float = 2.0) -> CoarseTable:
+                zenith_step_deg: float = 1.0, thickness_step_nm: float = 3.0) -> CoarseTable:
     """Tabulate model RGB over zenith ∈ [0, zenith_max] and thickness ∈ range (inclusive)."""
     lo, hi = (float(v) for v in thickness_range_nm)
     # Reflectance rises steeply towards grazing incidence: finer steps above 70°.
@@ -166,7 +166,7 @@ def _v_to_u_phi(x):
 
 def refine_pixels(model: FilmCamera, I_obs, angles_deg, zenith_deg, thickness_nm, azimuth_deg,
                   thickness_range_nm, zenith_max_deg: float = 89.5, weights=None, prior=None,
-                  iterations: int = 40):
+                  iterations: int = 40, step_tol_u: float = 1e-8, step_tol_nm: float = 1e-4):
     """Levenberg–Marquardt on all K × 3 intensity residuals of every pixel at once.
 
     The parameters are ``(v1, v2, d)`` with ``(v1, v2) = sin²θ (cos 2φ, sin 2φ)``: the
@@ -180,6 +180,8 @@ def refine_pixels(model: FilmCamera, I_obs, angles_deg, zenith_deg, thickness_nm
     prior : optional :class:`PixelPrior` (Gaussian priors on the normal's image-plane part and
         on the thickness, used by the surface-consistency step).
     iterations : maximum LM iterations.
+    step_tol_u, step_tol_nm : a pixel stops once an accepted step moves ``sin² θ`` (times
+        cos/sin 2φ) and the thickness by less than these.
 
     Returns
     -------
@@ -203,28 +205,63 @@ def refine_pixels(model: FilmCamera, I_obs, angles_deg, zenith_deg, thickness_nm
         x[:, 2] = np.clip(x[:, 2], lo, hi)
         return x
 
-    def residuals(x, idx):
+    c2a, s2a = np.cos(2 * ang), np.sin(2 * ang)
+
+    def evaluate(x, idx):
+        """Residuals (n, R) and the model's (S0, P) at x."""
         u, phi = _v_to_u_phi(x)
-        I, _, _ = model_intensities(model, u, x[:, 2], phi, ang)
+        I, S0, P = model_intensities(model, u, x[:, 2], phi, ang)
         r = ((I_obs[idx] - I) * w[idx]).reshape(idx.size, -1)
         if prior is not None:
             r = np.concatenate([r, prior.residuals(u, phi, x[:, 2], idx)], axis=1)
-        return r
+        return r, S0, P
 
-    def jacobian(x, r, idx):
-        J = np.empty(r.shape + (3,))
-        for col, h in ((0, 1e-7), (1, 1e-7), (2, 1e-3)):
-            xh = x.copy()
-            if col == 2:
-                sgn = np.where(x[:, 2] + h > hi, -1.0, 1.0)
-            else:  # step towards the origin when at the zenith limit
-                sgn = np.where(np.hypot(x[:, 0], x[:, 1]) + h > u_max, -np.sign(x[:, col] + 1e-300), 1.0)
-            xh[:, col] += sgn * h
-            J[:, :, col] = (residuals(xh, idx) - r) / (sgn * h)[:, None]
+    def jacobian(x, S0, P, idx):
+        """Chain rule through I = ½ (S0(u, d) - (P(u, d)/u) (v1 cos 2α + v2 sin 2α)), with
+        ∂/∂u and ∂/∂d of (S0, P) by forward differences (two optics evaluations)."""
+        n = idx.size
+        u = np.hypot(x[:, 0], x[:, 1])
+        d = x[:, 2]
+        hu = np.where(u + 1e-7 > u_max, -1e-7, 1e-7)
+        uh = u + hu
+        S0u, Pu = model.rgb_s0_p(np.sqrt(np.clip(1.0 - uh, 0.0, 1.0)), d)
+        hd = np.where(d + 1e-3 > hi, -1e-3, 1e-3)
+        S0d, Pd = model.rgb_s0_p(np.sqrt(np.clip(1.0 - u, 0.0, 1.0)), d + hd)
+        dS0_du = (S0u - S0) / hu[:, None]
+        dP_du = (Pu - P) / hu[:, None]
+        dS0_dd = (S0d - S0) / hd[:, None]
+        dP_dd = (Pd - P) / hd[:, None]
+        tiny = u < 1e-7
+        us = np.where(tiny, 1.0, u)
+        Q = np.where(tiny[:, None], Pu / uh[:, None], P / us[:, None])       # P / u
+        dQ_du = np.where(tiny[:, None], 0.0, (dP_du - Q) / us[:, None])
+        e1 = np.where(tiny, 0.0, x[:, 0] / us)                                  # ∂u/∂v
+        e2 = np.where(tiny, 0.0, x[:, 1] / us)
+        m = x[:, 0:1] * c2a[None, :] + x[:, 1:2] * s2a[None, :]                 # (n, K) = u cos 2(φ-α)
+        mm = m[:, :, None]
+        dI_dv1 = 0.5 * (e1[:, None, None] * (dS0_du[:, None, :] - dQ_du[:, None, :] * mm)
+                        - Q[:, None, :] * c2a[None, :, None])
+        dI_dv2 = 0.5 * (e2[:, None, None] * (dS0_du[:, None, :] - dQ_du[:, None, :] * mm)
+                        - Q[:, None, :] * s2a[None, :, None])
+        dI_dd = 0.5 * (dS0_dd[:, None, :] - (dP_dd / us[:, None])[:, None, :] * mm
+                       * np.where(tiny, 0.0, 1.0)[:, None, None])
+        wi = w[idx]
+        J = -np.stack([(dI_dv1 * wi).reshape(n, -1), (dI_dv2 * wi).reshape(n, -1),
+                       (dI_dd * wi).reshape(n, -1)], axis=-1)
+        if prior is not None:
+            u0, phi0 = _v_to_u_phi(x)
+            base = prior.residuals(u0, phi0, d, idx)
+            Jp = np.empty(base.shape + (3,))
+            for col, h in ((0, 1e-7), (1, 1e-7), (2, 1e-3)):
+                xh = x.copy()
+                xh[:, col] += h
+                uu, pp = _v_to_u_phi(xh)
+                Jp[:, :, col] = (prior.residuals(uu, pp, xh[:, 2], idx) - base) / h
+            J = np.concatenate([J, Jp], axis=1)
         return J
 
     all_idx = np.arange(N)
-    r = residuals(x, all_idx)
+    r, S0, P = evaluate(x, all_idx)
     cost = np.sum(r ** 2, axis=1)
     lam = np.full(N, 1e-3)
     active = np.ones(N, dtype=bool)
@@ -233,7 +270,7 @@ def refine_pixels(model: FilmCamera, I_obs, angles_deg, zenith_deg, thickness_nm
         idx = np.nonzero(active)[0]
         if idx.size == 0:
             break
-        J = jacobian(x[idx], r[idx], idx)
+        J = jacobian(x[idx], S0[idx], P[idx], idx)
         JtJ[idx] = np.einsum("nri,nrj->nij", J, J)
         if it == iterations:
             break
@@ -243,16 +280,17 @@ def refine_pixels(model: FilmCamera, I_obs, angles_deg, zenith_deg, thickness_nm
         A = JtJ[idx] + (lam[idx][:, None] * scale)[:, :, None] * np.eye(3)[None]
         step = -np.linalg.solve(A, g[:, :, None])[:, :, 0]
         xn = project(x[idx] + step)
-        rn = residuals(xn, idx)
+        rn, S0n, Pn = evaluate(xn, idx)
         cn = np.sum(rn ** 2, axis=1)
         better = cn < cost[idx]
         ib = idx[better]
         rel = (cost[idx] - cn)[better] / np.maximum(cost[ib], 1e-300)
-        x[ib], r[ib], cost[ib] = xn[better], rn[better], cn[better]
+        x[ib], r[ib], S0[ib], P[ib], cost[ib] = xn[better], rn[better], S0n[better], Pn[better], cn[better]
         lam[ib] = np.maximum(lam[ib] * 0.3, 1e-9)
         lam[idx[~better]] *= 10.0
         done = np.zeros(N, dtype=bool)
-        done[ib] = rel < 1e-12
+        small = (np.abs(step[better, :2]).max(axis=1) < step_tol_u) & (np.abs(step[better, 2]) < step_tol_nm)
+        done[ib] = (rel < 1e-12) | small
         done[idx[~better]] = lam[idx[~better]] > 1e8
         active &= ~done
     u, phi = _v_to_u_phi(x)

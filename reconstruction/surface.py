@@ -10,7 +10,7 @@ the orthographic camera. A height map ``z(x, y)`` in pixel units has the normal
     min_z  Σ_edges w_e (z_j - z_i - ḡ_e)²  +  λ Σ (second differences of z)²,
 
 one equation per pair of 4-neighbouring mask pixels (``ḡ_e`` the mean of the two pixels'
-gradients along the edge, ``w_e`` the mean of their weights). It works on any mask shape,
+gradients along the edge, ``w_e`` the smaller of their weights). It works on any mask shape,
 holes included; each connected part of the mask gets zero mean height. The optional
 second-difference term (``smoothness`` = λ) regularizes regions where the normals carry
 little information (small weights), e.g. near normal incidence in polarization data.
@@ -90,10 +90,10 @@ def integrate_normals(normals, mask, weights=None, smoothness: float = 0.0,
 
     # x edges: z[r, c+1] - z[r, c] = mean p
     e = mask[:, :-1] & mask[:, 1:]
-    add(idx[:, :-1][e], idx[:, 1:][e], 0.5 * (p[:, :-1] + p[:, 1:])[e], 0.5 * (w[:, :-1] + w[:, 1:])[e])
+    add(idx[:, :-1][e], idx[:, 1:][e], 0.5 * (p[:, :-1] + p[:, 1:])[e], np.minimum(w[:, :-1], w[:, 1:])[e])
     # y edges (y up = row - 1): z[r-1, c] - z[r, c] = mean q
     e = mask[1:, :] & mask[:-1, :]
-    add(idx[1:, :][e], idx[:-1, :][e], 0.5 * (q[1:, :] + q[:-1, :])[e], 0.5 * (w[1:, :] + w[:-1, :])[e])
+    add(idx[1:, :][e], idx[:-1, :][e], 0.5 * (q[1:, :] + q[:-1, :])[e], np.minimum(w[1:, :], w[:-1, :])[e])
 
     A = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(nrow, n))
     b = np.concatenate(rhs)
