@@ -115,7 +115,7 @@ def resolve_azimuth(azimuth_deg, zenith_deg, mask, confidence=None, seed_band_px
     """Pick φ or φ + 180° per pixel: outwards at the occluding boundary, then inwards by
     agreement with the already-resolved neighbours (the paper's Sec. 4.3).
 
-    1. Seeds: mask pixels within ``seed_band_px`` of the edge whose polarization direction is
+    1. Seeds: mask pixels within ``seed_band_px`` of the outer edge (holes do not count) whose polarization direction is
        aligned with the edge's outward direction (|cos| >= ``min_alignment``; pixels where the
        edge is not an occluding contour, such as the cut ends of a cylinder, are skipped).
        Their normals are made to point outwards.
@@ -151,8 +151,11 @@ def resolve_azimuth(azimuth_deg, zenith_deg, mask, confidence=None, seed_band_px
     wgt = np.where(mask, np.maximum(wgt, 1e-9), 0.0)
     sign = np.zeros((H, W))
 
-    out_dir = outward_directions(mask)
-    dist = ndimage.distance_transform_edt(mask)
+    # Occluding contours are the outer edge of the object: holes in the mask (e.g. where the
+    # camera sees its own hole in the lighting dome) are filled before measuring "outwards".
+    filled = ndimage.binary_fill_holes(mask)
+    out_dir = outward_directions(filled)
+    dist = ndimage.distance_transform_edt(filled)
     align = np.sum(d * out_dir, axis=-1)
     band = mask & (dist <= seed_band_px)
     seeds = band & (np.abs(align) >= min_alignment)

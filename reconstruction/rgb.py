@@ -34,7 +34,7 @@ method as published:
   pixel is re-fitted with a Gaussian prior towards the surface's normal (which fixes the
   sign of the azimuth, and the zenith where polarization is weak, near normal incidence)
   and towards the local median thickness (which fixes pixels that fell into a neighbouring
-  thickness basin); two rounds;
+  thickness basin);
 * exports the final height field as ``surface.ply``.
 
 Both write the estimate folder of ``DESIGN.md``. Nothing here reads ground truth: the
@@ -236,26 +236,23 @@ def _normal_information(info, n_xy):
 
 
 def _local_median(values, mask, size: int = 5):
-    from scipy import ndimage
+    """Median of ``values`` over the mask pixels of each ``size`` × ``size`` window."""
+    import warnings
 
     v = np.where(mask, values, np.nan)
     pad = size // 2
     H, W = v.shape
     vp = np.pad(v, pad, constant_values=np.nan)
     win = np.lib.stride_tricks.sliding_window_view(vp, (size, size))[:H, :W].reshape(H, W, -1)
-    with np.errstate(all="ignore"):
-        import warnings
-
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)
-            med = np.nanmedian(win, axis=-1)
-    del ndimage
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)   # all-NaN windows outside the mask
+        med = np.nanmedian(win, axis=-1)
     return np.where(np.isfinite(med), med, values)
 
 
-def reconstruct_coherent(capture: RGBCapture, progress: bool = False, rounds: int = 2,
-                         normal_prior_sigma: float = 0.03, thickness_prior_sigma_nm: float = 15.0,
-                         smoothness: float = 0.05) -> RGBResult:
+def reconstruct_coherent(capture: RGBCapture, progress: bool = False, rounds: int = 1,
+                         normal_prior_sigma: float = 0.01, thickness_prior_sigma_nm: float = 15.0,
+                         smoothness: float = 2.0) -> RGBResult:
     """Joint per-pixel inversion of the coherent model, then surface consistency.
 
     Parameters
@@ -263,7 +260,8 @@ def reconstruct_coherent(capture: RGBCapture, progress: bool = False, rounds: in
     capture : RGBCapture
     rounds : integrate → re-fit rounds.
     normal_prior_sigma : σ of the prior on each normal's image-plane part around the
-        integrated surface's normal (unitless; ~1.7° near normal incidence).
+        integrated surface's normal (unitless; 0.01 ≈ 0.6° near normal incidence). Where the
+        polarization data are confident (zenith beyond ~20°) they outweigh it.
     thickness_prior_sigma_nm : σ of the prior on thickness around its 5 × 5 local median.
     smoothness : curvature penalty of the height integration (relative to the mean weight).
     """
@@ -279,12 +277,14 @@ def reconstruct_coherent(capture: RGBCapture, progress: bool = False, rounds: in
     model = capture.model
     rng_nm = capture.thickness_range_nm
 
+    bar = _progress_bar(progress, 2 + rounds, "coherent")
     t = time.perf_counter()
     table = build_table(model, rng_nm)
     timings["table"] = time.perf_counter() - t
     t = time.perf_counter()
     fit = invert_pixels(model, I_obs, angles, rng_nm, table=table)
     timings["per_pixel"] = time.perf_counter() - t
+    bar.update(2)
 
     t = time.perf_counter()
     # Noise level of the data, from the residuals (robust; dof = 3K - 3).
@@ -305,7 +305,7 @@ def reconstruct_coherent(capture: RGBCapture, progress: bool = False, rounds: in
     t = time.perf_counter()
     height = None
     cost = fit.cost
-    for _ in _progress(range(rounds), progress, "surface rounds"):
+    for _ in range(rounds):
         normals = normals_from_angles(zen, np.nan_to_num(az))
         nz = np.clip(normals[..., 2], 0.0, 1.0)
         weights = np.where(mask, w_n * nz ** 4, 0.0)
@@ -327,13 +327,20 @@ def reconstruct_coherent(capture: RGBCapture, progress: bool = False, rounds: in
         dot = n_surf[mask][:, 0] * np.cos(phi) + n_surf[mask][:, 1] * np.sin(phi)
         az_new = np.mod(refit.azimuth_deg + np.where(dot < 0, 180.0, 0.0), 360.0)
         zen[mask], az[mask], thick[mask] = refit.zenith_deg, az_new, refit.thickness_nm
-        cost = refit.cost
+        cost = refit.data_cost
+        bar.update(1)
+    bar.close()
+    # The exported surface: every final normal is now good (data plus surface prior), so they
+    # are weighted alike except towards the silhouette (slopes clipped), with a light
+    # curvature penalty — the heavy one above only serves to carry the surface across regions
+    # where polarization says little.
     normals = normals_from_angles(zen, np.nan_to_num(az))
     nz = np.clip(normals[..., 2], 0.0, 1.0)
-    height = integrate_normals(normals, mask, np.where(mask, w_n * nz ** 4, 0.0), smoothness=smoothness)
+    height = integrate_normals(normals, mask, np.where(mask, nz ** 2, 0.0), smoothness=0.05)
     timings["surface"] = time.perf_counter() - t
 
-    # Pixels whose final fit is far worse than the noise are reported as invalid.
+    # Pixels whose final fit to the data (priors left out) is far worse than the noise are
+    # reported as invalid.
     chi2 = cost / (sigma ** 2 * max(3 * K - 3, 1))
     ok = np.isfinite(chi2) & (chi2 < 50.0)
     valid = np.zeros(mask.shape, dtype=bool)
@@ -375,6 +382,23 @@ def _progress(iterable, enabled, desc):
     from tqdm import tqdm
 
     return tqdm(iterable, desc=desc, file=sys.stderr, disable=not sys.stderr.isatty(), leave=False)
+
+
+class _NoBar:
+    def update(self, n=1):
+        pass
+
+    def close(self):
+        pass
+
+
+def _progress_bar(enabled, total, desc):
+    """A tqdm bar on stderr (only on a terminal), or a do-nothing stand-in."""
+    if not enabled or not sys.stderr.isatty():
+        return _NoBar()
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=desc, file=sys.stderr, leave=False)
 
 
 def _index_from(value, where):

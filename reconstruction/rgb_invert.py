@@ -41,7 +41,8 @@ class CoarseTable:
 @dataclass
 class PixelFit:
     """Per-pixel result: arrays of shape (N,). ``azimuth_deg`` in [0, 180) (the 180° ambiguity
-    is left open); ``cost`` is the sum of squared intensity residuals (weighted);
+    is left open); ``cost`` is the sum of squared residuals (weighted intensities, plus any
+    prior terms), ``data_cost`` the intensity part alone;
     ``info_u``, ``info_d`` … the Gauss–Newton information ``JᵀJ`` at the optimum (N, 3, 3) in
     the order (u, d, φ)."""
 
@@ -50,6 +51,7 @@ class PixelFit:
     thickness_nm: np.ndarray
     cost: np.ndarray
     info: np.ndarray
+    data_cost: np.ndarray | None = None
 
 
 @dataclass
@@ -295,7 +297,8 @@ def refine_pixels(model: FilmCamera, I_obs, angles_deg, zenith_deg, thickness_nm
         active &= ~done
     u, phi = _v_to_u_phi(x)
     zen = np.degrees(np.arcsin(np.sqrt(np.clip(u, 0.0, 1.0))))
-    return PixelFit(zen, np.mod(np.degrees(phi), 180.0), x[:, 2], cost, JtJ)
+    data_cost = np.sum(r[:, :I_obs[0].size] ** 2, axis=1)
+    return PixelFit(zen, np.mod(np.degrees(phi), 180.0), x[:, 2], cost, JtJ, data_cost)
 
 
 def invert_pixels(model: FilmCamera, I_obs, angles_deg, thickness_range_nm, table: CoarseTable | None = None,
@@ -332,6 +335,6 @@ def invert_pixels(model: FilmCamera, I_obs, angles_deg, thickness_range_nm, tabl
                             thickness_range_nm, zenith_max_deg=zenith_max_deg + 0.5,
                             weights=None if w is None else w[idx])
         b = fit.cost < best.cost[idx]
-        for name in ("zenith_deg", "azimuth_deg", "thickness_nm", "cost", "info"):
+        for name in ("zenith_deg", "azimuth_deg", "thickness_nm", "cost", "info", "data_cost"):
             getattr(best, name)[idx[b]] = getattr(fit, name)[b]
     return best

@@ -169,9 +169,14 @@ def test_integrate_two_parts_each_zero_mean():
 
 # -- azimuth ambiguity -----------------------------------------------------------------------
 
-def test_azimuth_ambiguity_resolved_from_the_boundary_of_a_hemisphere():
+@pytest.mark.parametrize("hole", [False, True])
+def test_azimuth_ambiguity_resolved_from_the_boundary_of_a_hemisphere(hole):
+    """Normals point outwards at the occluding contour; a hole in the mask (where the camera
+    sees the hole of the lighting dome) is not an occluding contour."""
     x, y, _ = _grid(48)
     mask = x ** 2 + y ** 2 < 1.0
+    if hole:
+        mask &= x ** 2 + y ** 2 > 0.2 ** 2
     z = np.sqrt(np.clip(1 - x ** 2 - y ** 2, 1e-9, None))
     zen = np.degrees(np.arccos(z))
     az = np.degrees(np.arctan2(y, x)) % 360.0
