@@ -30,7 +30,8 @@ import numpy as np
 
 from thinfilm.errors import UserError
 
-__all__ = ["VARIANT", "set_variant", "simulate", "generate_dataset", "write_dataset", "cli_main"]
+__all__ = ["VARIANT", "set_variant", "simulate", "polarized_rgb_channels", "band_channels", "generate_dataset",
+           "write_dataset", "cli_main"]
 
 VARIANT = "llvm_ad_mono_polarized"
 
@@ -46,11 +47,6 @@ def set_variant() -> None:
                         f"or set DRJIT_LIBLLVM_PATH") from None
 
 
-def _stokes_design(angles_deg) -> np.ndarray:
-    a = np.radians(np.asarray(angles_deg, dtype=np.float64))
-    return 0.5 * np.stack([np.ones_like(a), np.cos(2 * a), np.sin(2 * a)], axis=-1)
-
-
 def simulate(spec: dict, progress: bool = False) -> dict:
     """Render a resolved spec: ground truth, exact Stokes cube and the (noisy) captures.
 
@@ -63,8 +59,10 @@ def simulate(spec: dict, progress: bool = False) -> dict:
     """
     import mitsuba as mi
 
+    from thinfilm.reconstruction.polarization import malus_intensity, stokes_design_matrix
+
     from .noise import apply_camera_noise
-    from .render import captures_from_stokes, polarizer_intensity, render_stokes_cube
+    from .render import captures_from_stokes, render_stokes_cube, spectral_s_from_stokes
     from .scene import build_scene_dict, cast_ground_truth
     from .spec import wavelength_grid
 
@@ -96,17 +94,20 @@ def simulate(spec: dict, progress: bool = False) -> dict:
         from concurrent.futures import ThreadPoolExecutor
 
         def shoot(i):
-            frames = np.moveaxis(polarizer_intensity(stokes, angles[i]), -1, 0)  # (B, H, W) view
+            image = malus_intensity(stokes["S0"], stokes["S1"], stokes["S2"], [angles[i]])[0]
+            frames = np.moveaxis(image, -1, 0)  # (B, H, W) view
             return np.moveaxis(apply_camera_noise(frames, mask, noise, rngs[1 + i]), 0, -1)
 
-        fit = np.linalg.pinv(_stokes_design(angles))  # (3, A)
+        # The least-squares Stokes fit (reconstruction.polarization.fit_stokes), accumulated
+        # one angle at a time so that only one noisy stack is held at once.
+        fit = np.linalg.pinv(stokes_design_matrix(angles))  # (3, A)
         acc = np.zeros((3,) + stokes["S0"].shape)
         with ThreadPoolExecutor(max_workers=2) as pool:  # NumPy's generators release the GIL
             for i, noisy in enumerate(pool.map(shoot, range(len(angles)))):
                 for s in range(3):
                     acc[s] += fit[s, i] * noisy
         measured = {"S0": acc[0], "S1": acc[1], "S2": acc[2]}
-        spectral_s = measured["S0"] + np.hypot(measured["S1"], measured["S2"])
+        spectral_s = spectral_s_from_stokes(measured)
     t3 = time.perf_counter()
     return {"ground_truth": gt, "frame": frame, "wavelengths_nm": wl, "stokes_exact": stokes,
             "stokes": measured, "spectral_s": spectral_s, "polarized_rgb": polarized_rgb,
@@ -177,9 +178,26 @@ def _preview(path: Path, sim: dict) -> None:
     Image.fromarray(np.concatenate([left, gap, right], axis=1)).save(path, format="PNG")
 
 
+def polarized_rgb_channels(polarized_rgb: dict) -> dict:
+    """EXR channels of polarizer images {angle: (H, W, 3)}: ``pol000.R``, ``pol000.G``, ...
+    (:func:`thinfilm.dataset.pol_layer`), in the order of the dict."""
+    from thinfilm.dataset import pol_layer
+
+    return {f"{pol_layer(angle)}.{name}": img[..., c]
+            for angle, img in polarized_rgb.items() for c, name in enumerate("RGB")}
+
+
+def band_channels(cube, prefix: str = "") -> dict:
+    """EXR channels of a spectral cube (H, W, B): ``{prefix}band000``, ...
+    (:func:`thinfilm.dataset.band_channel`)."""
+    from thinfilm.dataset import band_channel
+
+    return {f"{prefix}{band_channel(b)}": cube[..., b] for b in range(cube.shape[-1])}
+
+
 def write_dataset(sim: dict, spec: dict, folder) -> None:
     """Write every file of format ``thinfilm-dataset/1`` into ``folder`` (which exists)."""
-    from thinfilm.dataset import band_channel, pol_layer, write_exr, write_json
+    from thinfilm.dataset import write_exr, write_json
 
     from .spec import dump_toml
 
@@ -192,16 +210,10 @@ def write_dataset(sim: dict, spec: dict, folder) -> None:
         "normal.Z": gt["normal"][..., 2], "zenith": gt["zenith"], "azimuth": gt["azimuth"],
         "thickness": gt["thickness"], "depth": gt["depth"], "mask": gt["mask"].astype(np.float32),
     })
-    channels = {}
-    for angle, img in sim["polarized_rgb"].items():
-        for c, name in enumerate("RGB"):
-            channels[f"{pol_layer(angle)}.{name}"] = img[..., c]
-    write_exr(folder / "polarized_rgb.exr", channels)
-    cube = sim["spectral_s"]
-    write_exr(folder / "spectral_s.exr", {band_channel(b): cube[..., b] for b in range(cube.shape[-1])})
+    write_exr(folder / "polarized_rgb.exr", polarized_rgb_channels(sim["polarized_rgb"]))
+    write_exr(folder / "spectral_s.exr", band_channels(sim["spectral_s"]))
     write_exr(folder / "stokes_spectral.exr", {
-        f"{s}.{band_channel(b)}": sim["stokes"][s][..., b]
-        for s in ("S0", "S1", "S2") for b in range(cube.shape[-1])})
+        k: v for s in ("S0", "S1", "S2") for k, v in band_channels(sim["stokes"][s], f"{s}.").items()})
     _preview(folder / "preview.png", sim)
 
 

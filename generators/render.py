@@ -38,8 +38,8 @@ import numpy as np
 
 __all__ = [
     "passband_quadrature",
+    "require_render_variant",
     "render_stokes_cube",
-    "polarizer_intensity",
     "spectral_s_from_stokes",
     "captures_from_stokes",
     "GAUSSIAN_TRUNCATION_SIGMA",
@@ -102,6 +102,29 @@ def passband_quadrature(wavelengths_nm, band_fwhm_nm: float, passband: str = "ga
     return sub, weights / weights.sum(axis=1, keepdims=True)
 
 
+def require_render_variant():
+    """The ``mitsuba`` module, once the caller's variant is checked to be a vectorized
+    ``*_mono_polarized`` one (e.g. ``llvm_ad_mono_polarized``) and the ``thinfilm`` and
+    ``imagespace`` plugins are registered in it.
+
+    Raises
+    ------
+    RuntimeError
+        When no such variant is set (library code never sets one).
+    """
+    import mitsuba as mi
+
+    from .scene import register_plugins
+
+    variant = mi.variant() or ""
+    if not variant.endswith("mono_polarized") or variant.startswith("scalar"):
+        raise RuntimeError(f"rendering Stokes cubes needs a vectorized *_mono_polarized Mitsuba "
+                           f"variant (e.g. llvm_ad_mono_polarized) set by the caller, the current "
+                           f"one is {variant or 'not set'}")
+    register_plugins()
+    return mi
+
+
 def _stokes_channels(scene):
     """Indices of S0, S1, S2 in the film's output (first colour channel of each)."""
     film = scene.sensors()[0].film()
@@ -140,15 +163,9 @@ def render_stokes_cube(scene, wavelengths_nm, band_fwhm_nm: float, passband: str
         Stokes frame of ``DESIGN.md`` (S1 = I(0°) - I(90°), 0° = image +x); ``mask``: (H, W)
         bool, pixels whose centre ray hits a surface facing the camera.
     """
-    import mitsuba as mi
+    from .scene import cast_ground_truth
 
-    from .scene import cast_ground_truth, register_plugins
-
-    variant = mi.variant() or ""
-    if not (variant.endswith("mono_polarized")):
-        raise RuntimeError(f"render_stokes_cube needs a *_mono_polarized Mitsuba variant, "
-                           f"the current one is {variant or 'not set'}")
-    register_plugins()
+    mi = require_render_variant()
     if isinstance(scene, dict):
         scene = mi.load_dict(scene)
     params = mi.traverse(scene)
@@ -190,13 +207,6 @@ def _set_wavelength(params, keys, lam: float) -> None:
     params.update()
 
 
-def polarizer_intensity(stokes: dict, angle_deg: float) -> np.ndarray:
-    """Intensity behind an ideal linear polarizer at ``angle_deg`` (from image +x towards +y):
-    I(α) = ½ (S0 + S1 cos 2α + S2 sin 2α)."""
-    a = math.radians(angle_deg)
-    return 0.5 * (stokes["S0"] + math.cos(2 * a) * stokes["S1"] + math.sin(2 * a) * stokes["S2"])
-
-
 def spectral_s_from_stokes(stokes: dict) -> np.ndarray:
     """s-polarized reflectance as a rotating-polarizer hyperspectral camera measures it:
     S0 + sqrt(S1² + S2²) (the maximum over polarizer angles, doubled)."""
@@ -218,14 +228,18 @@ def captures_from_stokes(stokes: dict, wavelengths_nm, rig: dict):
     Returns
     -------
     polarized_rgb : dict
-        angle (int degrees) → (H, W, 3) linear white-balanced camera RGB of I(α), through
+        angle (int degrees) → (H, W, 3) linear white-balanced camera RGB of I(α) (Malus'
+        law, :func:`thinfilm.reconstruction.polarization.malus_intensity`), through
         :func:`thinfilm.colorimetry.camera_weights`.
     spectral_s : ndarray (H, W, B)
     """
     from thinfilm.colorimetry import camera_weights
+    from thinfilm.reconstruction.polarization import malus_intensity
 
     wl = np.asarray(wavelengths_nm, dtype=np.float64)
     w = camera_weights(wl, rig["camera"], rig["illuminant"])
-    rgb_stokes = {k: stokes[k] @ w for k in ("S0", "S1", "S2")}  # linear: RGB of each component
-    polarized = {int(round(a)) % 360: polarizer_intensity(rgb_stokes, a) for a in rig["polarizer_angles_deg"]}
+    rgb_stokes = [stokes[k] @ w for k in ("S0", "S1", "S2")]  # linear: RGB of each component
+    angles = list(rig["polarizer_angles_deg"])
+    images = malus_intensity(*rgb_stokes, angles)
+    polarized = {int(round(a)) % 360: img for a, img in zip(angles, images)}
     return polarized, spectral_s_from_stokes(stokes)

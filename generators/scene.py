@@ -1,9 +1,10 @@
 """Mitsuba scenes for the capture generator, and their ground truth by ray casting.
 
 Conventions (``DESIGN.md``): orthographic camera looking along -z with image x to the
-right and y up, row 0 at the top; one ray per pixel through its centre. The object is
-centred in a square image (meshes: offset by a fraction of a pixel, see :func:`frame_for`)
-and its larger projected extent fills ``rig.fill`` of it.
+right and y up, row 0 at the top; one ray per pixel through its centre, square pixels. The
+generator's object is centred in a square image (meshes: offset by a fraction of a pixel,
+see :func:`frame_for`) and its larger projected extent fills ``rig.fill`` of it;
+:func:`normal_map_scene` also renders rectangular images.
 
 Shapes
 ------
@@ -59,11 +60,14 @@ ENVMAP_ROWS = 2048  # latitude rows of the dome-with-hole environment map (0.088
 
 @dataclass(frozen=True)
 class Frame:
-    """The orthographic view: a square of ``2 * half_width`` scene units centred at
-    (``cx``, ``cy``), seen from ``camera_z`` along -z, ``resolution`` pixels a side.
+    """The orthographic view: a rectangle ``2 * half_width`` scene units wide centred at
+    (``cx``, ``cy``), seen from ``camera_z`` along -z, ``resolution`` pixels wide and
+    ``rows`` pixels high (square pixels).
 
     Attributes
     ----------
+    rows : int or None
+        Image height in pixels; ``None`` for a square image (``resolution`` rows).
     object_extent : tuple
         (xmin, xmax, ymin, ymax) of the object's projection, scene units.
     object_center : tuple
@@ -81,25 +85,37 @@ class Frame:
     object_extent: tuple = (-1.0, 1.0, -1.0, 1.0)
     object_center: tuple = (0.0, 0.0)
     rim_radius: float = 1.0
+    rows: int | None = None
+
+    @property
+    def height_px(self) -> int:
+        """Image height in pixels (``resolution`` for a square image)."""
+        return self.resolution if self.rows is None else int(self.rows)
 
     @property
     def pixel_size(self) -> float:
         return 2.0 * self.half_width / self.resolution
 
+    @property
+    def half_height(self) -> float:
+        """Half the image height in scene units (``half_width`` for a square image)."""
+        return self.half_width * self.height_px / self.resolution
+
     def pixel_centres(self):
         """World (x, y) of the pixel centres: two (H, W) arrays, row 0 at the top."""
         i = np.arange(self.resolution, dtype=np.float64) + 0.5
+        j = np.arange(self.height_px, dtype=np.float64) + 0.5
         xs = self.cx - self.half_width + i * self.pixel_size
-        ys = self.cy + self.half_width - i * self.pixel_size
+        ys = self.cy + self.half_height - j * self.pixel_size
         return np.meshgrid(xs, ys)
 
     def as_dict(self) -> dict:
         """JSON-ready description (the ``projection`` entry of ``meta.json``)."""
-        x0, y1 = self.cx - self.half_width, self.cy + self.half_width
+        x0, y1 = self.cx - self.half_width, self.cy + self.half_height
         return {
             "type": "orthographic",
             "view_direction": [0.0, 0.0, -1.0],
-            "image_extent": [x0, x0 + 2 * self.half_width, y1 - 2 * self.half_width, y1],
+            "image_extent": [x0, x0 + 2 * self.half_width, y1 - 2 * self.half_height, y1],
             "pixel_size": self.pixel_size,
             "camera_z": self.camera_z,
             "depth": "distance from the image plane z = camera_z along -z (height = camera_z - depth)",
@@ -303,9 +319,9 @@ def _thickness_param(thickness, frame: Frame):
     return {
         "type": "imagespace",
         "x0": frame.cx - frame.half_width,
-        "y1": frame.cy + frame.half_width,
+        "y1": frame.cy + frame.half_height,
         "width": 2.0 * frame.half_width,
-        "height": 2.0 * frame.half_width,
+        "height": 2.0 * frame.half_height,
         "nested": {"type": "bitmap", "data": mi.TensorXf(data), "raw": True,
                    "filter_type": "bilinear", "wrap_mode": "clamp"},
     }
@@ -365,7 +381,7 @@ def _scene_dict(shape_entry, frame: Frame, hole_deg: float, max_depth: int) -> d
             "to_world": to_world,
             "near_clip": 1e-3 * h,
             "far_clip": frame.far_clip,
-            "film": {"type": "hdrfilm", "width": frame.resolution, "height": frame.resolution,
+            "film": {"type": "hdrfilm", "width": frame.resolution, "height": frame.height_px,
                      "rfilter": {"type": "box"}, "pixel_format": "luminance", "sample_border": False},
             "sampler": {"type": "stratified", "sample_count": 1, "jitter": False},
         },
@@ -411,16 +427,16 @@ def build_scene_dict(spec: dict):
 
 # --- ground truth --------------------------------------------------------------------------
 
-def _pixel_rays(sensor, resolution):
+def _pixel_rays(sensor, width, height):
     """The rays of a 1-spp, non-jittered render: through the pixel centres, row-major."""
     import drjit as dr
     import mitsuba as mi
 
-    idx = dr.arange(mi.UInt32, resolution * resolution)
-    row = idx // resolution
-    col = idx - row * resolution
-    scale = mi.Float(1.0 / resolution)
-    pos = mi.Point2f((mi.Float(col) + 0.5) * scale, (mi.Float(row) + 0.5) * scale)
+    idx = dr.arange(mi.UInt32, width * height)
+    row = idx // width
+    col = idx - row * width
+    pos = mi.Point2f((mi.Float(col) + 0.5) * mi.Float(1.0 / width),
+                     (mi.Float(row) + 0.5) * mi.Float(1.0 / height))
     ray, _ = sensor.sample_ray(0.0, 0.5, pos, mi.Point2f(0.5, 0.5))
     return ray
 
@@ -447,10 +463,8 @@ def cast_ground_truth(scene, thickness=None, frame: Frame | None = None) -> dict
     import mitsuba as mi
 
     sensor = scene.sensors()[0]
-    res = int(sensor.film().size()[0])
-    if int(sensor.film().size()[1]) != res:
-        raise ValueError("cast_ground_truth needs a square film")
-    ray = _pixel_rays(sensor, res)
+    width, height = (int(v) for v in sensor.film().size())
+    ray = _pixel_rays(sensor, width, height)
     si = scene.ray_intersect(mi.Ray3f(ray))
     valid = si.is_valid()
     n = si.sh_frame.n
@@ -463,17 +477,17 @@ def cast_ground_truth(scene, thickness=None, frame: Frame | None = None) -> dict
         t_nm = tex.eval_1(si, valid)
         values.append(t_nm)
     dr.eval(*values)
-    hit = np.asarray(valid, dtype=bool).reshape(res, res)
-    normal = np.stack([np.asarray(c, dtype=np.float64).reshape(res, res) for c in (n.x, n.y, n.z)], axis=-1)
+    hit = np.asarray(valid, dtype=bool).reshape(height, width)
+    normal = np.stack([np.asarray(c, dtype=np.float64).reshape(height, width) for c in (n.x, n.y, n.z)], axis=-1)
     mask = hit & (normal[..., 2] > 0)
     normal[~mask] = 0.0
     # Depth from the image plane through the camera origin (rays start at the near clip).
     camera_z = float(np.asarray((sensor.world_transform() @ mi.Point3f(0, 0, 0)).z)[0])
-    depth = np.where(mask, camera_z - np.asarray(si.p.z, dtype=np.float64).reshape(res, res), 0.0)
+    depth = np.where(mask, camera_z - np.asarray(si.p.z, dtype=np.float64).reshape(height, width), 0.0)
     if t_nm is not None:
-        thick = np.asarray(t_nm, dtype=np.float64).reshape(res, res)
+        thick = np.asarray(t_nm, dtype=np.float64).reshape(height, width)
     else:
-        thick = np.full((res, res), float(thickness) if thickness is not None else 0.0)
+        thick = np.full((height, width), float(thickness) if thickness is not None else 0.0)
     thick = np.where(mask, thick, 0.0)
     gt = ground_truth_from_normals(normal, mask)
     gt.update(thickness=thick, depth=depth)
@@ -482,12 +496,13 @@ def cast_ground_truth(scene, thickness=None, frame: Frame | None = None) -> dict
 
 def ground_truth_from_normals(normal: np.ndarray, mask: np.ndarray) -> dict:
     """``normal``, ``zenith`` = arccos(n_z) and ``azimuth`` = atan2(n_y, n_x) in [0, 360)
-    (degrees), zero outside ``mask``; ``mask`` as bool."""
+    (degrees, :func:`thinfilm.reconstruction.estimate.normals_to_angles`), zero outside
+    ``mask``; ``mask`` as bool."""
+    from thinfilm.reconstruction.estimate import normals_to_angles
+
     mask = np.asarray(mask, dtype=bool)
     normal = np.where(mask[..., None], normal, 0.0)
-    zenith = np.degrees(np.arccos(np.clip(normal[..., 2], -1.0, 1.0)))
-    azimuth = np.mod(np.degrees(np.arctan2(normal[..., 1], normal[..., 0])), 360.0)
-    azimuth = np.where(azimuth >= 360.0, 0.0, azimuth)
+    zenith, azimuth = normals_to_angles(normal)
     return {"normal": normal, "zenith": np.where(mask, zenith, 0.0),
             "azimuth": np.where(mask, azimuth, 0.0), "mask": mask}
 
@@ -523,7 +538,8 @@ def normal_map_scene(normals, thickness_nm, mask, film_ior, substrate_ior, subst
     given normal, and the thickness is the given map looked up at the pixel centre. The
     camera, dome and integrator are the generator's (``rig["dome_hole_deg"]`` is honoured).
     Inter-reflections and self-shadowing of the true surface are not reproduced: exact for
-    convex objects (the presets), an approximation otherwise.
+    convex objects (the presets), an approximation otherwise. Images may be rectangular:
+    the orthographic view is 2 scene units wide and ``2 H / W`` high (square pixels).
 
     Parameters
     ----------
@@ -542,22 +558,22 @@ def normal_map_scene(normals, thickness_nm, mask, film_ior, substrate_ior, subst
     Returns
     -------
     dict
-        A scene dictionary for ``mi.load_dict`` or ``render_stokes_cube`` (square images
-        need H == W).
+        A scene dictionary for ``mi.load_dict`` or ``render_stokes_cube``.
     """
     normals = np.asarray(normals, dtype=np.float64)
-    if normals.ndim != 3 or normals.shape[2] != 3 or normals.shape[0] != normals.shape[1]:
-        raise ValueError(f"normals must be (N, N, 3), got {normals.shape}")
-    res = normals.shape[0]
+    if normals.ndim != 3 or normals.shape[2] != 3:
+        raise ValueError(f"normals must be (H, W, 3), got {normals.shape}")
+    height, width = normals.shape[:2]
     mask = np.asarray(mask, dtype=bool) & np.all(np.isfinite(normals), axis=-1) & (normals[..., 2] > 0)
     register_plugins()
-    frame = Frame(cx=0.0, cy=0.0, half_width=1.0, camera_z=1.0, far_clip=100.0, resolution=res)
+    frame = Frame(cx=0.0, cy=0.0, half_width=1.0, camera_z=1.0, far_clip=100.0, resolution=width,
+                  rows=None if height == width else height)
     if np.isscalar(thickness_nm):
         thickness = max(float(thickness_nm), 0.0) if np.isfinite(thickness_nm) else 0.0
     else:
         thickness = np.asarray(thickness_nm, dtype=np.float64)
-        if thickness.shape != (res, res):
-            raise ValueError(f"thickness_nm must be ({res}, {res}), got {thickness.shape}")
+        if thickness.shape != (height, width):
+            raise ValueError(f"thickness_nm must be ({height}, {width}), got {thickness.shape}")
         thickness = np.where(np.isfinite(thickness), np.maximum(thickness, 0.0), 0.0).astype(np.float32)
     bsdf = _bsdf_dict(film_ior, substrate_ior, substrate_k, _thickness_param(thickness, frame))
     hole = float((rig or {}).get("dome_hole_deg", 0.0))

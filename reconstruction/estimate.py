@@ -19,7 +19,8 @@ def normals_to_angles(normals):
     """Zenith θ = arccos(n_z) and azimuth φ = atan2(n_y, n_x) in [0, 360), both in degrees."""
     n = np.asarray(normals, dtype=np.float64)
     zenith = np.degrees(np.arccos(np.clip(n[..., 2], -1.0, 1.0)))
-    azimuth = np.degrees(np.arctan2(n[..., 1], n[..., 0])) % 360.0
+    azimuth = np.mod(np.degrees(np.arctan2(n[..., 1], n[..., 0])), 360.0)
+    azimuth = np.where(azimuth >= 360.0, 0.0, azimuth)  # a tiny negative angle rounds up to 360
     return zenith, azimuth
 
 

@@ -152,11 +152,11 @@ def _ground_truth_estimate(dataset: Path, out: Path) -> None:
 
 
 def _evaluate(dataset: Path, estimate: Path, out: Path) -> dict:
-    import mitsuba as mi
+    from thinfilm.generators.generate import set_variant
 
     from . import evaluation
 
-    mi.set_variant(evaluation.RENDER_VARIANT)
+    set_variant()  # the evaluation re-renders in the generator's variant
     r = evaluation.evaluate(dataset, estimate, out)
     return {"metrics": r["metrics"], "coverage": r["info"]["coverage"],
             "film_ior_estimated": r["info"]["film_ior_estimated"]}

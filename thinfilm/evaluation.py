@@ -15,12 +15,14 @@
    the true geometry; interreflections of concave shapes are not reproduced (the paper's
    model has none either).
 2. The re-rendered Stokes cube becomes the same captures the dataset holds: s-polarized
-   spectra ``S0 + sqrt(S1² + S2²)`` and polarized camera RGB.
+   spectra ``S0 + sqrt(S1² + S2²)`` and polarized camera RGB
+   (:func:`thinfilm.generators.render.captures_from_stokes`).
 3. Errors per pixel over the object mask (ground-truth mask ∧ estimate ``valid``):
    normal angle, zenith, thickness; ΔE*ab (CIE 1976, paper Eq. 31) and ΔE00 between the
    captured and re-rendered s-polarized appearance, in CIELAB from spectra
-   (:mod:`thinfilm.color_difference`), or from camera RGB through the fitted
-   camera→XYZ matrix when the dataset holds no spectra; spectral RMSE (paper Eq. 32)
+   (:mod:`thinfilm.color_difference`), or, when the dataset holds no spectra, from the
+   s-polarized camera RGB (Stokes fit of :mod:`thinfilm.reconstruction.polarization`)
+   through the fitted camera→XYZ matrix; spectral RMSE (paper Eq. 32)
    ``sqrt(Σ_λ (R_o − R_e)² / N)`` per pixel in reflectance units (0.02 = 2 %).
 
 Outputs: ``metrics.json`` (exactly the keys of ``DESIGN.md``), ``evaluation.json``
@@ -35,6 +37,8 @@ from pathlib import Path
 
 import numpy as np
 
+from thinfilm.generators.generate import VARIANT as RENDER_VARIANT
+
 from .errors import UserError
 
 __all__ = [
@@ -43,12 +47,10 @@ __all__ = [
     "summarize",
     "angular_error_deg",
     "geometry_error_maps",
-    "s_polarized_from_stokes",
-    "stokes_from_polarized",
+    "s_polarized_rgb",
     "appearance_error_maps",
     "film_ior_value",
     "metrics_from_maps",
-    "normal_map_mesh",
     "render_normal_map",
     "rerender_estimate",
     "check_estimate",
@@ -58,7 +60,6 @@ __all__ = [
 
 METRIC_KEYS = ("normal_error_deg", "zenith_error_deg", "thickness_error_nm",
                "delta_e_ab", "delta_e_2000", "spectral_rmse")
-RENDER_VARIANT = "llvm_ad_mono_polarized"
 
 
 # -- statistics and per-pixel errors --------------------------------------------------------
@@ -94,10 +95,12 @@ def angular_error_deg(normals_a, normals_b) -> np.ndarray:
 def geometry_error_maps(ground_truth: dict, estimate: dict) -> dict:
     """Per-pixel ``normal_error_deg``, ``zenith_error_deg`` (|θ_est − θ_gt|) and
     ``thickness_error_nm`` (|d_est − d_gt|); NaN where the estimate is invalid."""
+    from thinfilm.reconstruction.estimate import normals_to_angles
+
     valid = estimate["valid"]
+    normal = np.asarray(estimate["normal"], dtype=np.float64)
     with np.errstate(invalid="ignore"):
-        zen_est = np.degrees(np.arccos(np.clip(
-            estimate["normal"][..., 2] / np.linalg.norm(estimate["normal"], axis=-1), -1.0, 1.0)))
+        zen_est = normals_to_angles(normal / np.linalg.norm(normal, axis=-1, keepdims=True))[0]
         maps = {
             "normal_error_deg": angular_error_deg(estimate["normal"], ground_truth["normal"]),
             "zenith_error_deg": np.abs(zen_est - np.asarray(ground_truth["zenith"], dtype=np.float64)),
@@ -107,27 +110,21 @@ def geometry_error_maps(ground_truth: dict, estimate: dict) -> dict:
     return {k: np.where(valid, v, np.nan) for k, v in maps.items()}
 
 
-def s_polarized_from_stokes(stokes: dict) -> np.ndarray:
-    """S-polarized reflectance ``S0 + sqrt(S1² + S2²)`` (the maximum over polarizer angles,
-    doubled), as ``spectral_s.exr`` defines it; works per band or per RGB channel."""
-    return stokes["S0"] + np.sqrt(stokes["S1"] ** 2 + stokes["S2"] ** 2)
+def s_polarized_rgb(polarized_rgb: dict, where: str = "polarized_rgb.exr") -> np.ndarray:
+    """S-polarized camera RGB ``S0 + sqrt(S1² + S2²)`` per channel (H, W, 3) from polarizer
+    images {angle: (H, W, 3)}: the least-squares Stokes fit
+    (:func:`thinfilm.reconstruction.polarization.stokes_from_dataset`) turned into the
+    s-polarized capture as :func:`thinfilm.generators.render.spectral_s_from_stokes` defines it.
 
-
-def stokes_from_polarized(images: dict) -> dict:
-    """Least-squares ``S0, S1, S2`` from intensities behind a polarizer at ≥ 3 angles.
-
-    ``images``: angle in degrees → array (...). Inverts ``I(α) = ½ (S0 + S1 cos 2α + S2 sin 2α)``.
+    Raises
+    ------
+    UserError
+        Naming ``where`` when fewer than three distinct polarizer angles are given.
     """
-    angles = sorted(images)
-    if len(angles) < 3:
-        raise UserError(f"need images at 3 or more polarizer angles to recover Stokes vectors, "
-                        f"got {angles}")
-    t = np.radians(np.asarray(angles, dtype=np.float64))
-    design = 0.5 * np.stack([np.ones_like(t), np.cos(2 * t), np.sin(2 * t)], axis=-1)
-    pinv = np.linalg.pinv(design)  # (3, A)
-    stack = np.stack([np.asarray(images[a], dtype=np.float64) for a in angles], axis=-1)
-    s = stack @ pinv.T
-    return {"S0": s[..., 0], "S1": s[..., 1], "S2": s[..., 2]}
+    from thinfilm.generators.render import spectral_s_from_stokes
+    from thinfilm.reconstruction.polarization import stokes_from_dataset
+
+    return spectral_s_from_stokes(dict(zip(("S0", "S1", "S2"), stokes_from_dataset(polarized_rgb, where))))
 
 
 def appearance_error_maps(captured, rendered, wavelengths_nm, illuminant, kind="spectra", camera=None):
@@ -190,158 +187,39 @@ def metrics_from_maps(maps: dict, mask, film_ior_error) -> dict:
 
 # -- re-rendering -----------------------------------------------------------------------------
 
-def _require_variant():
-    import mitsuba as mi
-
-    variant = mi.variant()
-    if variant is None or not variant.endswith("mono_polarized") or variant.startswith("scalar"):
-        raise RuntimeError(f"re-rendering needs a vectorized mono polarized Mitsuba variant "
-                           f"(e.g. {RENDER_VARIANT}) set by the caller, not {variant!r}")
-    from thinfilm.generators.scene import register_plugins
-
-    register_plugins()
-    return mi
-
-
-def normal_map_mesh(normals, thickness_nm, valid, bsdf):
-    """A Mitsuba mesh for images that are not square (the generator's
-    ``normal_map_scene`` covers square ones): one quad per valid pixel in the plane z = 0,
-    pixel (row i, column j) covering x ∈ [j − W/2, j + 1 − W/2], y ∈ [H/2 − i − 1, H/2 − i];
-    its four vertices carry the pixel's normal (shading normal) and the texture coordinate
-    of the pixel's centre in an H×W thickness bitmap. ``None`` when no pixel is valid."""
-    mi = _require_variant()
-    normals = np.asarray(normals, dtype=np.float64)
-    h, w = valid.shape
-    ys, xs = np.nonzero(valid)
-    if ys.size == 0:
-        return None
-    n = normals[ys, xs]
-    n = n / np.linalg.norm(n, axis=-1, keepdims=True)
-    x0 = xs - w / 2.0
-    y0 = h / 2.0 - ys
-    corners = ((0.0, 0.0), (1.0, 0.0), (1.0, -1.0), (0.0, -1.0))
-    verts = np.stack([np.stack([x0 + cx, y0 + cy, np.zeros(xs.shape)], axis=-1) for cx, cy in corners],
-                     axis=1).reshape(-1, 3)
-    vnormals = np.repeat(n[:, None, :], 4, axis=1).reshape(-1, 3)
-    uv = np.stack([(xs + 0.5) / w, (ys + 0.5) / h], axis=-1)
-    vuv = np.repeat(uv[:, None, :], 4, axis=1).reshape(-1, 2)
-    base = (np.arange(xs.size) * 4)[:, None]
-    faces = np.concatenate([base + [0, 3, 2], base + [0, 2, 1]], axis=0)  # counter-clockwise from +z
-    props = mi.Properties()
-    props["bsdf"] = bsdf
-    mesh = mi.Mesh("estimate_plane", verts.shape[0], faces.shape[0], props=props,
-                   has_vertex_normals=True, has_vertex_texcoords=True)
-    params = mi.traverse(mesh)
-    params["vertex_positions"] = mi.Float(verts.astype(np.float32).ravel())
-    params["vertex_normals"] = mi.Float(vnormals.astype(np.float32).ravel())
-    params["vertex_texcoords"] = mi.Float(vuv.astype(np.float32).ravel())
-    params["faces"] = mi.UInt32(faces.astype(np.uint32).ravel())
-    params.update()
-    return mesh
-
-
-def _rectangular_scene(normals, thickness, valid, film_ior, substrate_ior, substrate_k, dome_hole_deg):
-    """Scene of :func:`normal_map_mesh` under an orthographic camera fitting the image, with
-    the generator's dome and integrator settings; ``None`` when no pixel is valid."""
-    mi = _require_variant()
-    from thinfilm.generators.scene import dome_dict
-
-    h, w = valid.shape
-    bsdf = mi.load_dict({
-        "type": "thinfilm", "substrate_ior": float(substrate_ior), "substrate_k": float(substrate_k),
-        "film_ior": film_ior if isinstance(film_ior, str) else float(film_ior),
-        "thickness": {"type": "bitmap", "bitmap": mi.Bitmap(thickness.astype(np.float32)[..., None]),
-                      "raw": True, "filter_type": "nearest", "wrap_mode": "clamp"}})
-    mesh = normal_map_mesh(normals, thickness, valid, bsdf)
-    if mesh is None:
-        return None
-    half = max(w, h) / 2.0
-    return {
-        "type": "scene",
-        "integrator": {"type": "stokes", "nested": {"type": "path", "max_depth": 3, "hide_emitters": True}},
-        "sensor": {
-            "type": "orthographic",
-            "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 10.0], target=[0, 0, 0], up=[0, 1, 0])
-            @ mi.ScalarTransform4f().scale([half, half, 1.0]),
-            "film": {"type": "hdrfilm", "width": w, "height": h, "rfilter": {"type": "box"},
-                     "pixel_format": "luminance", "sample_border": False},
-            "sampler": {"type": "stratified", "sample_count": 1, "jitter": False},
-        },
-        "dome": dome_dict(float(dome_hole_deg)),
-        "estimate": mesh,
-    }
-
-
-def _render_bands(scene_dict, wavelengths_nm, band_fwhm_nm, passband, progress):
-    """Band-integrated Stokes cube of any scene (square or not), with the generator's
-    passband quadrature (:func:`thinfilm.generators.render.passband_quadrature`)."""
-    mi = _require_variant()
-    from tqdm import tqdm
-
-    from thinfilm.generators.render import passband_quadrature
-
-    scene = mi.load_dict(scene_dict)
-    params = mi.traverse(scene)
-    keys = [k for k in params.keys() if k == "wavelength" or k.endswith(".wavelength")]
-    sub_nm, weights = passband_quadrature(wavelengths_nm, float(band_fwhm_nm), passband)
-    w, h = (int(v) for v in scene.sensors()[0].film().size())
-    cube = np.zeros((3, h, w, weights.shape[0]))
-    channels = None
-    for k, lam in enumerate(tqdm(sub_nm, desc="re-rendering", unit="λ", leave=False,
-                                 disable=None if progress else True)):
-        for key in keys:
-            params[key] = float(lam)
-        params.update()
-        img = np.asarray(mi.render(scene, spp=1, seed=0), dtype=np.float64)
-        if channels is None:  # the film holds Y, then S0..S3 as R, G, B (equal in mono)
-            st = scene.sensors()[0].film().bitmap().struct_()
-            names = [st[i].name for i in range(len(st))]
-            channels = [names.index(f"S{i}.R") for i in range(3)]
-        for b in np.nonzero(weights[:, k])[0]:
-            cube[..., b] += weights[b, k] * np.moveaxis(img[..., channels], -1, 0)
-    return {s: cube[i] for i, s in enumerate(("S0", "S1", "S2"))}
-
-
 def render_normal_map(normals, thickness_nm, valid, wavelengths_nm, film_ior, substrate_ior,
                       substrate_k=0.0, dome_hole_deg=0.0, band_fwhm_nm=0.0, passband="gaussian",
                       progress=False) -> dict:
-    """Band-integrated Stokes cube of a per-pixel normal and thickness field, rendered through
-    the ``thinfilm`` plugin under the generator's orthographic camera and dome.
-
-    Square images use the generator's :func:`thinfilm.generators.scene.normal_map_scene` and
+    """Band-integrated Stokes cube of a per-pixel normal and thickness field (any H × W),
+    rendered through the ``thinfilm`` plugin under the generator's orthographic camera and
+    dome: the generator's :func:`thinfilm.generators.scene.normal_map_scene` and
     :func:`thinfilm.generators.render.render_stokes_cube` (the code that rendered the
-    captures); other shapes a quad-per-pixel plane (:func:`normal_map_mesh`) with the same
-    passband quadrature. Needs a mono polarized variant set by the caller.
+    captures). Needs a vectorized mono polarized variant set by the caller.
 
     Returns
     -------
     dict ``"S0"``, ``"S1"``, ``"S2"`` → (H, W, B) float64 in reflectance units, Stokes in
     the ``DESIGN.md`` frame (``S1 = I(0°) − I(90°)``, 0° = image +x); zero off ``valid``.
     """
-    _require_variant()
+    from thinfilm.generators.render import render_stokes_cube, require_render_variant
+    from thinfilm.generators.scene import normal_map_scene
+
+    require_render_variant()
     valid = np.asarray(valid, dtype=bool)
     h, w = valid.shape
     wl = np.asarray(wavelengths_nm, dtype=np.float64)
     normals = np.asarray(normals, dtype=np.float64)
     valid = valid & np.all(np.isfinite(normals), axis=-1) & (np.nan_to_num(normals[..., 2]) > 0)
+    if not valid.any():
+        return {s: np.zeros((h, w, wl.size)) for s in ("S0", "S1", "S2")}
     safe_normals = np.where(valid[..., None], np.nan_to_num(normals), [0.0, 0.0, 1.0])
     thickness = np.where(valid, np.asarray(thickness_nm, dtype=np.float64), 0.0)
     thickness = np.clip(np.nan_to_num(thickness), 0.0, None)
     film = film_ior if isinstance(film_ior, str) else float(film_ior)
-    if not valid.any():
-        return {s: np.zeros((h, w, wl.size)) for s in ("S0", "S1", "S2")}
-    if h == w:
-        from thinfilm.generators.render import render_stokes_cube
-        from thinfilm.generators.scene import normal_map_scene
-
-        scene = normal_map_scene(safe_normals, thickness, valid, film, float(substrate_ior),
-                                 float(substrate_k), rig={"dome_hole_deg": float(dome_hole_deg)})
-        out = render_stokes_cube(scene, wl, float(band_fwhm_nm), passband, progress=progress)
-        out.pop("mask", None)
-    else:
-        scene = _rectangular_scene(safe_normals, thickness, valid, film, substrate_ior, substrate_k,
-                                   dome_hole_deg)
-        out = _render_bands(scene, wl, band_fwhm_nm, passband, progress)
+    scene = normal_map_scene(safe_normals, thickness, valid, film, float(substrate_ior), float(substrate_k),
+                             rig={"dome_hole_deg": float(dome_hole_deg)})
+    out = render_stokes_cube(scene, wl, float(band_fwhm_nm), passband, progress=progress)
+    out.pop("mask", None)
     for s in ("S0", "S1", "S2"):
         out[s] = np.where(valid[..., None], out[s], 0.0)
     return out
@@ -457,9 +335,8 @@ def evaluate(dataset_path, estimate_path, out=None, progress=False, figures=True
         m_fit = None
     else:
         kind = "camera_rgb"
-        captured = s_polarized_from_stokes(stokes_from_polarized(ds.polarized_rgb))
-        rerendered = s_polarized_from_stokes(stokes_from_polarized(
-            {a: rendered["polarized_rgb"][a] for a in ds.polarized_rgb}))
+        captured = s_polarized_rgb(ds.polarized_rgb, str(ds.path / "polarized_rgb.exr"))
+        rerendered = s_polarized_rgb({a: rendered["polarized_rgb"][a] for a in ds.polarized_rgb})
         colour_path = (f"s-polarized camera RGB (S0 + |S1, S2| per channel, from polarized_rgb) -> XYZ "
                        f"through a 3x3 matrix fitted to the CIE 1931 2 degree colour-matching functions "
                        f"from the {camera} sensitivities under {illuminant} (white-preserving least "
@@ -515,19 +392,16 @@ def evaluate(dataset_path, estimate_path, out=None, progress=False, figures=True
 def write_evaluation(out, result: dict, figures=True) -> Path:
     """Write ``metrics.json``, ``evaluation.json``, ``rerendered.exr``, ``errors.exr`` and
     figures into ``out`` atomically."""
-    from .dataset import atomic_output_dir, band_channel, pol_layer, write_exr, write_json
+    from thinfilm.generators.generate import band_channels, polarized_rgb_channels
+
+    from .dataset import atomic_output_dir, write_exr, write_json
 
     with atomic_output_dir(out) as tmp:
         write_json(tmp / "metrics.json", result["metrics"])
         write_json(tmp / "evaluation.json", result["info"])
         rendered = result["rendered"]
-        channels = {}
-        for a, img in rendered["polarized_rgb"].items():
-            for c, name in enumerate("RGB"):
-                channels[f"{pol_layer(a)}.{name}"] = img[..., c]
-        for b in range(rendered["spectral_s"].shape[-1]):
-            channels[f"spectral_s.{band_channel(b)}"] = rendered["spectral_s"][..., b]
-        write_exr(tmp / "rerendered.exr", channels)
+        write_exr(tmp / "rerendered.exr", {**polarized_rgb_channels(rendered["polarized_rgb"]),
+                                           **band_channels(rendered["spectral_s"], "spectral_s.")})
         write_exr(tmp / "errors.exr", {**{k: np.nan_to_num(v, nan=0.0) for k, v in result["maps"].items()},
                                        "mask": result["mask"].astype(np.float32)})
         if figures:
@@ -541,9 +415,9 @@ def cli_main(args) -> int:
     """``thinfilm evaluate DATASET ESTIMATE --out DIR``."""
     import sys
 
-    import mitsuba as mi
+    from thinfilm.generators.generate import set_variant
 
-    mi.set_variant(RENDER_VARIANT)
+    set_variant()
     result = evaluate(args.dataset, args.estimate, args.out, progress=sys.stderr.isatty())
     m = result["metrics"]
 
