@@ -246,14 +246,37 @@ def fit_angle_thickness(spectra, theta0, thickness0, film_ior, substrate_ior, wa
     spectrum does not constrain θ).
     """
     S = np.asarray(spectra, dtype=np.float64)
+    th, d, cur = _levenberg_marquardt(S, theta0, thickness0, film_ior, substrate_ior, wavelengths_nm,
+                                      iterations, fit_theta, theta_max_deg, stokes_noise)
+    return th, d, cur[:, 5], _sigma_theta(cur, S.shape[1], fit_theta)
+
+
+def _sigma_theta(cur, bands, fit_theta=True):
+    """Standard deviation of θ from the normal equations ``cur`` ([a11 a12 a22 g1 g2 sse])."""
+    n = cur.shape[0]
+    if not fit_theta:
+        return np.full(n, np.inf)
+    var = cur[:, 5] / max(bands - 2, 1)
+    det = cur[:, 0] * cur[:, 2] - cur[:, 1] ** 2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cov_tt = np.where(det > 0, cur[:, 2] / det, np.inf)
+        sigma = np.sqrt(var * cov_tt)
+    return np.where(np.isfinite(sigma), sigma, np.inf)
+
+
+def _levenberg_marquardt(S, theta0, thickness0, film_ior, substrate_ior, wavelengths_nm,
+                         iterations=12, fit_theta=True, theta_max_deg=89.5, stokes_noise=None):
+    """The iterations of :func:`fit_angle_thickness`: final (θ, d) and, per pixel, the normal
+    equations at that point, ``[a11 a12 a22 g1 g2 sse]`` (θ first, then d)."""
     wl = np.asarray(wavelengths_nm, dtype=np.float64)
     th = np.array(theta0, dtype=np.float64)
     d = np.array(thickness0, dtype=np.float64)
-    n, b = S.shape
+    n = S.shape[0]
     lam = np.full(n, 1e-3)
-    jac = ("theta", "thickness") if fit_theta else ("thickness",)
     th_max = np.radians(theta_max_deg)
     noise = None if stokes_noise is None else np.broadcast_to(np.asarray(stokes_noise, float), (n,))
+
+    jac = ("theta", "thickness") if fit_theta else ("thickness",)
 
     def evaluate(idx, th_, d_):
         nz = None if noise is None else noise[idx]
@@ -266,7 +289,8 @@ def fit_angle_thickness(spectra, theta0, thickness0, film_ior, substrate_ior, wa
         return np.stack([dot(Jt, Jt), dot(Jt, Jd), dot(Jd, Jd), dot(Jt, r), dot(Jd, r), dot(r, r)], -1)
 
     # Levenberg-Marquardt; each iteration evaluates the model and its Jacobian once, at the
-    # trial point (kept when the residual drops, else the damping grows)
+    # trial point (kept when the residual drops, else the damping grows), for the pixels that
+    # are still moving
     cur = np.empty((n, 6))
     cur[:] = evaluate(np.arange(n), th, d)
     active = np.ones(n, dtype=bool)
@@ -297,16 +321,7 @@ def fit_angle_thickness(spectra, theta0, thickness0, film_ior, substrate_ior, wa
         lam[idx] = np.where(better, l / 3.0, l * 5.0)
         small = (np.abs(dd) < 1e-3) & (np.abs(dt) < 1e-6)
         active[idx] = ~(small & better) & (lam[idx] < 1e8)
-    sse = cur[:, 5]
-    A = np.zeros((n, 2, 2))
-    A[:, 0, 0], A[:, 0, 1], A[:, 1, 0], A[:, 1, 1] = cur[:, 0], cur[:, 1], cur[:, 1], cur[:, 2]
-    var = sse / max(b - (2 if fit_theta else 1), 1)
-    det = A[:, 0, 0] * A[:, 1, 1] - A[:, 0, 1] ** 2
-    with np.errstate(divide="ignore", invalid="ignore"):
-        cov_tt = np.where(det > 0, A[:, 1, 1] / det, np.inf)
-    sigma = np.sqrt(var * cov_tt) if fit_theta else np.full(n, np.inf)
-    sigma = np.where(np.isfinite(sigma), sigma, np.inf)
-    return th, d, sse, sigma
+    return th, d, cur
 
 
 def initial_thickness(spectra, theta_rad, peak_wl_nm, film_ior, substrate_ior, wavelengths_nm,
@@ -476,6 +491,70 @@ def _init_no_peak(S, n2, n3, wl, d_guess):
     return best_t, best_d
 
 
+def _unfold_magnitude(observed, sigma):
+    """The ``μ >= 0`` whose folded normal ``|N(μ, σ²)|`` has mean ``observed`` (0 below the mean
+    of ``|N(0, σ²)|``, σ sqrt(2/π)); ``observed`` itself beyond 8 σ, where the fold is nil."""
+    from scipy.special import erf
+
+    t = np.linspace(0.0, 8.0, 1601)
+    mean = np.sqrt(2.0 / np.pi) * np.exp(-0.5 * t * t) + t * erf(t / np.sqrt(2.0))
+    x = np.asarray(observed, dtype=np.float64)
+    s = np.maximum(np.asarray(sigma, dtype=np.float64), 1e-300)
+    with np.errstate(invalid="ignore", over="ignore"):
+        r = np.nan_to_num(x / s, nan=0.0, posinf=np.inf)
+        return np.where(r >= mean[-1], x, s * np.interp(np.minimum(r, mean[-1]), mean, t, left=0.0))
+
+
+def _fit_no_peak(spectra, mask, has, th_fit, d_fit, n2, n3, wl, stokes_noise, misfit=3.0):
+    """(θ, d) of the object pixels without a peak (``~has``), by Levenberg-Marquardt started from
+    the nearest pixel with a peak (the surface and the film are continuous); pixels whose fit
+    stays ``misfit`` times above the noise's expected residual are restarted from the coarse
+    grid of :func:`_init_no_peak` and keep the better fit.
+
+    Returns θ, d and the normal equations (as :func:`_levenberg_marquardt`) of those pixels.
+    """
+    none = ~has
+    S = spectra[none]
+    nz = stokes_noise[none]
+    if has.any():
+        img = np.full(mask.shape, -1, dtype=np.int64)
+        img[mask] = np.where(has, np.arange(has.size), -1)
+        _, (ir, ic) = ndimage.distance_transform_edt(img < 0, return_indices=True)
+        src = img[ir, ic][mask][none]
+        t_start, d_start = th_fit[src], d_fit[src]
+    else:
+        t_start, d_start = _init_no_peak(S, n2, n3, wl, np.full(S.shape[0], 400.0))
+    th, d, cur = _levenberg_marquardt(S, t_start, d_start, n2, n3, wl, stokes_noise=nz)
+    bad = np.nonzero(cur[:, 5] > misfit * wl.size * np.maximum(nz, 1e-6) ** 2)[0]
+    if has.any() and bad.size:
+        tg, dg = _init_no_peak(S[bad], n2, n3, wl, d_start[bad])
+        th_b, d_b, cur_b = _levenberg_marquardt(S[bad], tg, dg, n2, n3, wl, stokes_noise=nz[bad])
+        better = cur_b[:, 5] < cur[bad, 5]
+        th[bad[better]], d[bad[better]], cur[bad[better]] = th_b[better], d_b[better], cur_b[better]
+    return th, d, cur
+
+
+def _thickness_at(spectra, theta, th_fit, d_fit, neq, n2, n3, wl, stokes_noise, linear_deg=0.25):
+    """Thickness per pixel at new angles ``theta`` (fitted at ``th_fit``, ``d_fit``).
+
+    Near the fitted angle the best thickness follows it linearly, ``d(θ) = d_fit - a12/a22 Δθ``
+    from the normal equations ``neq`` of the (θ, d) fit (the second-order term is below 0.01 nm
+    within ``linear_deg``); pixels whose angle moved further are refitted (d alone) through
+    the optics core, from the shifted value where that shift is small and from ``d_fit``
+    otherwise.
+    """
+    dth = theta - th_fit
+    with np.errstate(divide="ignore", invalid="ignore"):
+        shift = np.nan_to_num(np.where(neq[:, 2] > 0, -neq[:, 1] / neq[:, 2] * dth, 0.0))
+    d = np.where(np.abs(shift) <= 10.0, np.maximum(d_fit + shift, 0.0), d_fit)
+    redo = np.nonzero(np.abs(dth) > np.radians(linear_deg))[0]
+    if redo.size:
+        _, d[redo], _ = _levenberg_marquardt(spectra[redo], theta[redo], d[redo], n2, n3, wl,
+                                             iterations=6, fit_theta=False,
+                                             stokes_noise=stokes_noise[redo])
+    return d
+
+
 def reconstruct_eikonal(cube, wavelengths_nm, substrate_ior, mask, smoothness=10.0, angle_floor_deg=0.2,
                         condition_scale=2.0, noise_scale=1.0):
     """The default method (see the module docstring)."""
@@ -505,27 +584,19 @@ def reconstruct_eikonal(cube, wavelengths_nm, substrate_ior, mask, smoothness=10
     if has.any():
         d0[has] = initial_thickness(spectra[has], theta_peak[has], pk.wavelength_nm[has], n2, n3, wl)
     th0 = np.where(has, theta_peak, 0.0)
-    # pixels with a peak first; their thickness seeds the others
+    # pixels with a peak first; they seed the others
     th_fit = np.zeros_like(th0)
     d_fit = np.zeros_like(th0)
-    sse = np.zeros_like(th0)
-    sig = np.full_like(th0, np.inf)
+    neq = np.zeros((th0.size, 6))  # normal equations at the fit, [a11 a12 a22 g1 g2 sse]
     if has.any():
-        th_fit[has], d_fit[has], sse[has], sig[has] = fit_angle_thickness(
+        th_fit[has], d_fit[has], neq[has] = _levenberg_marquardt(
             spectra[has], th0[has], d0[has], n2, n3, wl, stokes_noise=stokes_noise[has])
     none = ~has
     if none.any():
-        img_d = np.full(mask.shape, np.nan)
-        img_d[mask] = np.where(has, d_fit, np.nan)
-        known = np.isfinite(img_d)
-        if known.any():
-            _, (ir, ic) = ndimage.distance_transform_edt(~known, return_indices=True)
-            guess = img_d[ir, ic][mask][none]
-        else:
-            guess = np.full(int(none.sum()), 400.0)
-        tg, dg = _init_no_peak(spectra[none], n2, n3, wl, guess)
-        th_fit[none], d_fit[none], sse[none], sig[none] = fit_angle_thickness(
-            spectra[none], tg, dg, n2, n3, wl, stokes_noise=stokes_noise[none])
+        th_fit[none], d_fit[none], neq[none] = _fit_no_peak(
+            spectra, mask, has, th_fit, d_fit, n2, n3, wl, stokes_noise)
+    sse = neq[:, 5]
+    sig = _sigma_theta(neq, wl.size)
     t["fit_angle_thickness"] = time.perf_counter() - t0
 
     # 3. the surface as a whole
@@ -548,7 +619,11 @@ def reconstruct_eikonal(cube, wavelengths_nm, substrate_ior, mask, smoothness=10
     z0 = _eik.fast_marching_height(slope, mask, phi)
     t["fast_marching"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    z = _eik.refine_height(z0, slope, weight, mask, smoothness=smoothness)
+    # the refinement's target slope: a measured angle is a magnitude, so near normal incidence
+    # (σ comparable to the slope) its noise only ever adds to it; the target is the slope
+    # whose folded-normal mean is the measurement
+    slope_t = np.where(mask, _unfold_magnitude(slope, np.where(mask, sig_slope, 1.0)), 0.0)
+    z = _eik.refine_height(z0, slope_t, weight, mask, smoothness=smoothness)
     p, q = _eik.height_gradient(z, mask)
     theta_z = np.arctan(np.hypot(p, q))
     # blend: the pixel's own angle where it is precise, the surface's elsewhere
@@ -565,8 +640,7 @@ def reconstruct_eikonal(cube, wavelengths_nm, substrate_ior, mask, smoothness=10
 
     # 4. thickness at the final angle
     t0 = time.perf_counter()
-    _, d_fin, sse_fin, _ = fit_angle_thickness(spectra, theta_fin[mask], d_fit, n2, n3, wl,
-                                               iterations=6, fit_theta=False, stokes_noise=stokes_noise)
+    d_fin = _thickness_at(spectra, theta_fin[mask], th_fit, d_fit, neq, n2, n3, wl, stokes_noise)
     t["thickness"] = time.perf_counter() - t0
     thickness = np.full(mask.shape, np.nan)
     thickness[mask] = d_fin

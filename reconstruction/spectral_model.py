@@ -132,13 +132,16 @@ def _dr_chunk(theta, d, n2, n3, wl, jac, sig2=None):
         dr.enable_grad(var[name])
     R_s, R_p = optics.reflectances(dr.cos(T), W, D, N2, n3)
     R = R_s if sig2 is None else _measured(R_s, R_p, dr.repeat(Float64(sig2), b), dr.sqrt)
-    out = [R.numpy().reshape(n, b)]
+    grads = []
     for name in jac:
-        # keep the graph's edges so that the next pass can reuse them
+        # symbolic forward passes (keeping the graph's edges for the next one); nothing is
+        # evaluated until the end, so the value and every derivative come from one kernel
         dr.forward_from(var[name], flags=dr.ADFlag.ClearVertices)
-        out.append(dr.grad(R).numpy().reshape(n, b))
+        grads.append(dr.grad(R))
         dr.clear_grad(R)
-    return out
+    R = dr.detach(R)
+    dr.eval(R, *grads)
+    return [x.numpy().reshape(n, b) for x in (R, *grads)]
 
 
 def grid_sse(observed, theta_rad, thickness_nm, film_ior, substrate_ior, wavelengths_nm):
