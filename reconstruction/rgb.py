@@ -322,7 +322,7 @@ def reconstruct_coherent(capture: RGBCapture, progress: bool = False, rounds: in
         d0 = thick[mask]
         far = np.abs(d0 - d_med[mask]) > 3 * thickness_prior_sigma_nm
         d0 = np.where(far, d_med[mask], d0)
-        refit = refine_pixels(model, I_obs, angles, zen[mask], d0, az[mask], rng_nm, prior=prior)
+        refit = refine_pixels(table, I_obs, angles, zen[mask], d0, az[mask], prior=prior)
         phi = np.radians(refit.azimuth_deg)
         dot = n_surf[mask][:, 0] * np.cos(phi) + n_surf[mask][:, 1] * np.sin(phi)
         az_new = np.mod(refit.azimuth_deg + np.where(dot < 0, 180.0, 0.0), 360.0)

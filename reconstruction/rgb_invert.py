@@ -3,16 +3,23 @@
 Unknowns per pixel: zenith θ (carried as ``u = sin² θ``), film thickness d and azimuth φ
 (modulo 180°: the polarizer cannot tell φ from φ + 180°). Observations: camera RGB behind
 the polarizer at K ≥ 3 angles. All K × 3 values are fitted together with the model of
-:class:`~thinfilm.reconstruction.rgb_model.FilmCamera`:
+:class:`~thinfilm.reconstruction.rgb_model.FilmCamera`, through its spline tabulation
+(:class:`~thinfilm.reconstruction.rgb_model.FilmTable`, built once per run from the optics
+core, which reproduces the optics core to a few parts in 10⁶):
 
-1. **Coarse search** over a table of model RGB ``(S0, P)`` on a (θ, d) grid; for every table
-   entry the best φ has a closed form, so the whole table is scored with a few matrix
-   products. The best entries from distinct thickness basins are kept (colours repeat along
-   thickness, Fig. 5 of the paper).
+1. **Coarse search** over model RGB ``(S0, P)`` on a (θ, d) grid. In the feature space
+   ``(√w0 S0, √w1 P)`` the intensity least-squares cost is a Euclidean distance once the
+   azimuth is fixed; the azimuth is taken from the observation itself (the common direction
+   of the three channels' linear polarization), both signs of ``P`` are tried, and the
+   nearest table entries are found with a k-d tree. Their exact costs (best φ per entry, in
+   closed form) then rank them, and the best entries from distinct thickness basins are kept
+   (colours repeat along thickness, Fig. 5 of the paper).
 2. **Refinement**: a vectorized Levenberg–Marquardt on the K × 3 intensity residuals of all
-   pixels at once, from each kept candidate; the lowest final cost wins.
+   pixels at once, with the spline's exact derivatives, from each kept candidate; the lowest
+   final cost wins.
 
-Both steps call the optics core through the model; nothing here re-implements physics.
+Nothing here re-implements physics: every model value comes from the optics core, through
+the table.
 """
 
 from __future__ import annotations
@@ -22,20 +29,33 @@ from dataclasses import dataclass
 import numpy as np
 
 from .polarization import fit_stokes, stokes_design_matrix
-from .rgb_model import FilmCamera
+from .rgb_model import FilmCamera, FilmTable, film_table
 
-__all__ = ["CoarseTable", "PixelFit", "PixelPrior", "build_table", "coarse_search", "refine_pixels", "invert_pixels",
-           "model_intensities"]
+__all__ = ["InversionTable", "PixelFit", "PixelPrior", "build_table", "coarse_search", "refine_pixels",
+           "invert_pixels", "model_intensities"]
 
 
 @dataclass
-class CoarseTable:
-    """Model RGB on a (zenith, thickness) grid: ``S0``, ``P`` of shape (Z, D, 3)."""
+class InversionTable:
+    """What the inversion needs for one model and thickness range.
 
+    Attributes
+    ----------
+    film : the spline tabulation of the model (:func:`~.rgb_model.film_table`), used by the
+        refinement.
+    zenith_deg, thickness_nm : (E,) the coarse search's entries.
+    S0, P : (E, 3) model RGB at those entries (from ``film``).
+    """
+
+    film: FilmTable
     zenith_deg: np.ndarray
     thickness_nm: np.ndarray
     S0: np.ndarray
     P: np.ndarray
+
+    @property
+    def thickness_range_nm(self):
+        return self.film.thickness_range_nm
 
 
 @dataclass
@@ -43,8 +63,8 @@ class PixelFit:
     """Per-pixel result: arrays of shape (N,). ``azimuth_deg`` in [0, 180) (the 180° ambiguity
     is left open); ``cost`` is the sum of squared residuals (weighted intensities, plus any
     prior terms), ``data_cost`` the intensity part alone;
-    ``info_u``, ``info_d`` … the Gauss–Newton information ``JᵀJ`` at the optimum (N, 3, 3) in
-    the order (u, d, φ)."""
+    ``info`` the Gauss–Newton information ``JᵀJ`` at the optimum (N, 3, 3) in the order
+    (v1, v2, d) of :func:`refine_pixels`."""
 
     zenith_deg: np.ndarray
     azimuth_deg: np.ndarray
@@ -81,21 +101,40 @@ class PixelPrior:
 
 
 def build_table(model: FilmCamera, thickness_range_nm, zenith_max_deg: float = 89.0,
-                zenith_step_deg: float = 1.0, thickness_step_nm: float = 3.0) -> CoarseTable:
-    """Tabulate model RGB over zenith ∈ [0, zenith_max] and thickness ∈ range (inclusive)."""
+                zenith_step_deg: float = 1.0, thickness_step_nm: float = 6.0,
+                refine_zenith_max_deg: float = 89.5, phase_step_rad: float = 0.35) -> InversionTable:
+    """Tabulate the model for :func:`invert_pixels`.
+
+    The spline table (one pass of the optics core over its grid) covers zenith up to
+    ``refine_zenith_max_deg`` and the thickness range; the coarse entries cover zenith ∈
+    [0, zenith_max] (steps of ``zenith_step_deg``, four times finer above 70° where
+    reflectance rises steeply) and thickness ∈ range (inclusive) in steps of about
+    ``thickness_step_nm``, evaluated on the spline.
+    """
     lo, hi = (float(v) for v in thickness_range_nm)
-    # Reflectance rises steeply towards grazing incidence: finer steps above 70°.
+    film = film_table(model, (lo, hi), zenith_max_deg=refine_zenith_max_deg, phase_step_rad=phase_step_rad)
     zen = np.arange(0.0, min(70.0, zenith_max_deg) + 1e-9, zenith_step_deg)
     if zenith_max_deg > 70.0:
         zen = np.unique(np.concatenate([zen, np.arange(70.0, zenith_max_deg + 1e-9, zenith_step_deg / 4)]))
     n = max(2, int(round((hi - lo) / thickness_step_nm)) + 1)
     thick = np.linspace(lo, hi, n)
-    S0, P = model.rgb_s0_p(np.cos(np.radians(zen))[:, None], thick[None, :])
-    return CoarseTable(zen, thick, S0, P)
+    Z, D = np.meshgrid(zen, thick, indexing="ij")
+    c = np.cos(np.radians(Z.ravel()))
+    S0, Q = film.s0_q(c, D.ravel())
+    P = Q * (1.0 - c * c)[:, None]
+    return InversionTable(film, Z.ravel(), D.ravel(), S0, P)
 
 
-def coarse_search(table: CoarseTable, S0, S1, S2, angles_deg, n_candidates: int = 3,
-                  basin_nm: float = 40.0, chunk: int = 256):
+def _cost_weights(angles_deg):
+    """Weights of S0 and of (S1, S2) in the intensity least-squares cost (exact for angles
+    evenly spread over 180°, the mean for others)."""
+    A = stokes_design_matrix(angles_deg)
+    M = A.T @ A
+    return float(M[0, 0]), float(0.5 * (M[1, 1] + M[2, 2]))
+
+
+def coarse_search(table: InversionTable, S0, S1, S2, angles_deg, n_candidates: int = 3,
+                  basin_nm: float = 40.0, neighbours: int = 32):
     """Best table entries per pixel, from distinct thickness basins.
 
     Parameters
@@ -104,58 +143,59 @@ def coarse_search(table: CoarseTable, S0, S1, S2, angles_deg, n_candidates: int 
     angles_deg : the polarizer angles (to weight S0 against S1/S2 as the intensity
         least-squares cost does).
     n_candidates : how many entries to keep, each more than ``basin_nm`` in thickness from
-        the ones kept before it.
+        the ones kept before it (fewer where the nearest entries hold fewer basins: the cost
+        of a missing candidate is ``inf``).
+    neighbours : entries looked up per pixel and sign of ``P`` (nearest in feature space).
 
     Returns
     -------
     zenith_deg, thickness_nm, azimuth_deg, cost : arrays (N, n_candidates).
     """
-    A = stokes_design_matrix(angles_deg)
-    M = A.T @ A
-    w0, w1 = M[0, 0], 0.5 * (M[1, 1] + M[2, 2])
-    Z, D = table.S0.shape[:2]
-    tS0 = table.S0.reshape(-1, 3)
-    tP = table.P.reshape(-1, 3)
-    t_norm = w0 * np.sum(tS0 ** 2, axis=1) + w1 * np.sum(tP ** 2, axis=1)
-    thick = np.broadcast_to(table.thickness_nm[None, :], (Z, D)).ravel()
-    zen = np.broadcast_to(table.zenith_deg[:, None], (Z, D)).ravel()
+    from scipy.spatial import cKDTree
+
+    w0, w1 = _cost_weights(angles_deg)
+    S0, S1, S2 = (np.asarray(v, dtype=np.float64) for v in (S0, S1, S2))
     N = S0.shape[0]
-    out = [np.empty((N, n_candidates)) for _ in range(4)]
-    f32 = np.float32
-    tS0w, tPT = (2 * w0 * tS0.T).astype(f32), tP.T.astype(f32)
-    t_norm = t_norm.astype(f32)
-    for i in range(0, N, chunk):
-        s0, s1, s2 = S0[i:i + chunk], S1[i:i + chunk], S2[i:i + chunk]
-        Y1 = s1.astype(f32) @ tPT
-        Y2 = s2.astype(f32) @ tPT
-        cost = np.multiply(Y1, Y1)
-        cost += Y2 * Y2
-        np.sqrt(cost, out=cost)
-        cost *= f32(-2 * w1)
-        cost -= s0.astype(f32) @ tS0w
-        cost += t_norm[None, :]
-        const = w0 * np.sum(s0 ** 2, axis=1) + w1 * np.sum(s1 ** 2 + s2 ** 2, axis=1)
-        n = cost.shape[0]
-        rows = np.arange(n)
-        cost = cost.reshape(n, Z, D)
-        jz = np.argmin(cost, axis=1)  # best zenith row for every thickness column
-        cd = np.take_along_axis(cost, jz[:, None, :], axis=1)[:, 0, :]  # (n, D)
-        for k in range(n_candidates):
-            jd = np.argmin(cd, axis=1)
-            j = jz[rows, jd] * D + jd
-            out[0][i:i + chunk, k] = zen[j]
-            out[1][i:i + chunk, k] = thick[j]
-            out[2][i:i + chunk, k] = np.mod(0.5 * np.degrees(np.arctan2(-Y2[rows, j], -Y1[rows, j])), 180.0)
-            out[3][i:i + chunk, k] = np.maximum(cd[rows, jd] + const, 0.0)
-            if k + 1 < n_candidates:
-                near = np.abs(table.thickness_nm[None, :] - table.thickness_nm[jd][:, None]) <= basin_nm
-                cd[near] = np.inf
+    r0, r1 = np.sqrt(w0), np.sqrt(w1)
+    tree = cKDTree(np.concatenate([r0 * table.S0, r1 * table.P], axis=1))
+    # The channels' common polarization axis 2φ (mod 180°), and the signed P along it.
+    psi = 0.5 * np.arctan2(2.0 * np.sum(S1 * S2, axis=1), np.sum(S1 * S1 - S2 * S2, axis=1))
+    p = S1 * np.cos(psi)[:, None] + S2 * np.sin(psi)[:, None]
+    obs = np.concatenate([np.concatenate([r0 * S0, -r1 * p], axis=1),
+                          np.concatenate([r0 * S0, r1 * p], axis=1)])
+    k = min(neighbours, len(table.S0))
+    _, idx = tree.query(obs, k=k, workers=-1)
+    idx = np.asarray(idx).reshape(2, N, k).transpose(1, 0, 2).reshape(N, 2 * k)
+    # Exact costs of those entries, with the best azimuth of each.
+    tS0, tP = table.S0[idx], table.P[idx]                                  # (N, 2k, 3)
+    Y1 = np.einsum("nc,nec->ne", S1, tP)
+    Y2 = np.einsum("nc,nec->ne", S2, tP)
+    const = w0 * np.sum(S0 ** 2, axis=1) + w1 * np.sum(S1 ** 2 + S2 ** 2, axis=1)
+    cost = (w0 * np.sum(tS0 ** 2, axis=2) + w1 * np.sum(tP ** 2, axis=2)
+            - 2.0 * w0 * np.einsum("nc,nec->ne", S0, tS0) - 2.0 * w1 * np.hypot(Y1, Y2) + const[:, None])
+    cost = np.maximum(cost, 0.0)
+    thick = table.thickness_nm[idx]
+    rows = np.arange(N)
+    out = [np.full((N, n_candidates), np.nan) for _ in range(3)] + [np.full((N, n_candidates), np.inf)]
+    for j in range(n_candidates):
+        e = np.argmin(cost, axis=1)
+        ok = np.isfinite(cost[rows, e])
+        ent = idx[rows, e]
+        out[0][ok, j] = table.zenith_deg[ent][ok]
+        out[1][ok, j] = table.thickness_nm[ent][ok]
+        phi = np.mod(0.5 * np.degrees(np.arctan2(-Y2[rows, e], -Y1[rows, e])), 180.0)
+        out[2][ok, j] = phi[ok]
+        out[3][ok, j] = cost[rows, e][ok]
+        if j + 1 < n_candidates:
+            cost[np.abs(thick - thick[rows, e][:, None]) <= basin_nm] = np.inf
     return tuple(out)
 
 
-def model_intensities(model: FilmCamera, u, d, phi_rad, angles_rad):
+def model_intensities(table: InversionTable, u, d, phi_rad, angles_rad):
     """Model RGB behind each polarizer: (N, K, 3), with ``P`` (N, 3) and ``S0`` (N, 3)."""
-    S0, P = model.rgb_s0_p(np.sqrt(np.clip(1.0 - u, 0.0, 1.0)), d)
+    u = np.clip(u, 0.0, 1.0)
+    S0, Q = table.film.s0_q(np.sqrt(1.0 - u), d)
+    P = Q * u[:, None]
     c = np.cos(2.0 * (phi_rad[:, None] - angles_rad[None, :]))  # (N, K)
     I = 0.5 * (S0[:, None, :] - P[:, None, :] * c[:, :, None])
     return I, S0, P
@@ -166,16 +206,21 @@ def _v_to_u_phi(x):
     return np.hypot(x[:, 0], x[:, 1]), 0.5 * np.arctan2(x[:, 1], x[:, 0])
 
 
-def refine_pixels(model: FilmCamera, I_obs, angles_deg, zenith_deg, thickness_nm, azimuth_deg,
-                  thickness_range_nm, zenith_max_deg: float = 89.5, weights=None, prior=None,
+def refine_pixels(table: InversionTable, I_obs, angles_deg, zenith_deg, thickness_nm, azimuth_deg,
+                  zenith_max_deg: float = 89.5, weights=None, prior=None,
                   iterations: int = 40, step_tol_u: float = 1e-8, step_tol_nm: float = 1e-4):
     """Levenberg–Marquardt on all K × 3 intensity residuals of every pixel at once.
 
     The parameters are ``(v1, v2, d)`` with ``(v1, v2) = sin²θ (cos 2φ, sin 2φ)``: the
-    model is smooth in them through normal incidence, where φ is undefined.
+    model ``I = ½ (S0(u, d) - Q(u, d) (v1 cos 2α + v2 sin 2α))`` (``Q = P / u``, ``u = |v|``)
+    is smooth in them through normal incidence, where φ is undefined. Derivatives are the
+    spline table's own (exact for the tabulated model).
 
     Parameters
     ----------
+    table : :func:`build_table` for the model and thickness range (the thickness is kept
+        inside the table's range, the zenith below ``zenith_max_deg``, which must not exceed
+        the table's zenith range).
     I_obs : (N, K, 3) observed RGB behind each polarizer.
     zenith_deg, thickness_nm, azimuth_deg : (N,) start values.
     weights : optional (N, K, 3) residual weights (1/σ).
@@ -189,11 +234,13 @@ def refine_pixels(model: FilmCamera, I_obs, angles_deg, zenith_deg, thickness_nm
     -------
     PixelFit
     """
+    film = table.film
+    I_obs = np.asarray(I_obs, dtype=np.float64)
     N = I_obs.shape[0]
     ang = np.radians(np.asarray(angles_deg, dtype=np.float64))
-    lo, hi = (float(v) for v in thickness_range_nm)
-    u_max = np.sin(np.radians(zenith_max_deg)) ** 2
-    w = np.ones_like(I_obs) if weights is None else weights
+    lo, hi = film.thickness_range_nm
+    u_max = min(np.sin(np.radians(zenith_max_deg)) ** 2, 1.0 - film.cos_range[0] ** 2)
+    w = None if weights is None else np.asarray(weights, dtype=np.float64)
     u0 = np.clip(np.sin(np.radians(zenith_deg)) ** 2, 0.0, u_max)
     phi0 = np.radians(azimuth_deg)
     x = np.stack([u0 * np.cos(2 * phi0), u0 * np.sin(2 * phi0),
@@ -208,86 +255,72 @@ def refine_pixels(model: FilmCamera, I_obs, angles_deg, zenith_deg, thickness_nm
         return x
 
     c2a, s2a = np.cos(2 * ang), np.sin(2 * ang)
+    n_data = I_obs[0].size
 
     def evaluate(x, idx):
-        """Residuals (n, R) and the model's (S0, P) at x."""
-        u, phi = _v_to_u_phi(x)
-        I, S0, P = model_intensities(model, u, x[:, 2], phi, ang)
-        r = ((I_obs[idx] - I) * w[idx]).reshape(idx.size, -1)
-        if prior is not None:
-            r = np.concatenate([r, prior.residuals(u, phi, x[:, 2], idx)], axis=1)
-        return r, S0, P
-
-    def jacobian(x, S0, P, idx):
-        """Chain rule through I = ½ (S0(u, d) - (P(u, d)/u) (v1 cos 2α + v2 sin 2α)), with
-        ∂/∂u and ∂/∂d of (S0, P) by forward differences (two optics evaluations)."""
+        """Residuals (n, R) and Jacobian (n, R, 3) at x."""
         n = idx.size
         u = np.hypot(x[:, 0], x[:, 1])
-        d = x[:, 2]
-        hu = np.where(u + 1e-7 > u_max, -1e-7, 1e-7)
-        uh = u + hu
-        S0u, Pu = model.rgb_s0_p(np.sqrt(np.clip(1.0 - uh, 0.0, 1.0)), d)
-        hd = np.where(d + 1e-3 > hi, -1e-3, 1e-3)
-        S0d, Pd = model.rgb_s0_p(np.sqrt(np.clip(1.0 - u, 0.0, 1.0)), d + hd)
-        dS0_du = (S0u - S0) / hu[:, None]
-        dP_du = (Pu - P) / hu[:, None]
-        dS0_dd = (S0d - S0) / hd[:, None]
-        dP_dd = (Pd - P) / hd[:, None]
-        tiny = u < 1e-7
+        cos = np.sqrt(np.clip(1.0 - u, 0.0, 1.0))
+        S0, Q, S0c, Qc, S0d, Qd = film.s0_q(cos, x[:, 2], derivatives=True)
+        dc_du = (-0.5 / np.maximum(cos, 1e-12))[:, None]
+        S0u, Qu = S0c * dc_du, Qc * dc_du
+        m = (x[:, 0:1] * c2a[None, :] + x[:, 1:2] * s2a[None, :])[:, :, None]       # (n, K, 1)
+        I = 0.5 * (S0[:, None, :] - Q[:, None, :] * m)
+        tiny = u < 1e-12
         us = np.where(tiny, 1.0, u)
-        Q = np.where(tiny[:, None], Pu / uh[:, None], P / us[:, None])       # P / u
-        dQ_du = np.where(tiny[:, None], 0.0, (dP_du - Q) / us[:, None])
-        e1 = np.where(tiny, 0.0, x[:, 0] / us)                                  # ∂u/∂v
-        e2 = np.where(tiny, 0.0, x[:, 1] / us)
-        m = x[:, 0:1] * c2a[None, :] + x[:, 1:2] * s2a[None, :]                 # (n, K) = u cos 2(φ-α)
-        mm = m[:, :, None]
-        dI_dv1 = 0.5 * (e1[:, None, None] * (dS0_du[:, None, :] - dQ_du[:, None, :] * mm)
-                        - Q[:, None, :] * c2a[None, :, None])
-        dI_dv2 = 0.5 * (e2[:, None, None] * (dS0_du[:, None, :] - dQ_du[:, None, :] * mm)
-                        - Q[:, None, :] * s2a[None, :, None])
-        dI_dd = 0.5 * (dS0_dd[:, None, :] - (dP_dd / us[:, None])[:, None, :] * mm
-                       * np.where(tiny, 0.0, 1.0)[:, None, None])
-        wi = w[idx]
-        J = -np.stack([(dI_dv1 * wi).reshape(n, -1), (dI_dv2 * wi).reshape(n, -1),
-                       (dI_dd * wi).reshape(n, -1)], axis=-1)
+        e1 = np.where(tiny, 0.0, x[:, 0] / us)[:, None, None]                       # ∂u/∂v
+        e2 = np.where(tiny, 0.0, x[:, 1] / us)[:, None, None]
+        g = S0u[:, None, :] - Qu[:, None, :] * m                                    # ∂(2I)/∂u
+        J = np.empty((n, I.shape[1], 3, 3))
+        J[..., 0] = -0.5 * (e1 * g - Q[:, None, :] * c2a[None, :, None])
+        J[..., 1] = -0.5 * (e2 * g - Q[:, None, :] * s2a[None, :, None])
+        J[..., 2] = -0.5 * (S0d[:, None, :] - Qd[:, None, :] * m)
+        r = I_obs[idx] - I
+        if w is not None:
+            r = r * w[idx]
+            J = J * w[idx][..., None]
+        r = r.reshape(n, -1)
+        J = J.reshape(n, -1, 3)
         if prior is not None:
-            u0, phi0 = _v_to_u_phi(x)
-            base = prior.residuals(u0, phi0, d, idx)
+            u0, p0 = _v_to_u_phi(x)
+            base = prior.residuals(u0, p0, x[:, 2], idx)
             Jp = np.empty(base.shape + (3,))
             for col, h in ((0, 1e-7), (1, 1e-7), (2, 1e-3)):
                 xh = x.copy()
                 xh[:, col] += h
                 uu, pp = _v_to_u_phi(xh)
                 Jp[:, :, col] = (prior.residuals(uu, pp, xh[:, 2], idx) - base) / h
+            r = np.concatenate([r, base], axis=1)
             J = np.concatenate([J, Jp], axis=1)
-        return J
+        return r, J
 
     all_idx = np.arange(N)
-    r, S0, P = evaluate(x, all_idx)
+    r, J = evaluate(x, all_idx)
     cost = np.sum(r ** 2, axis=1)
     lam = np.full(N, 1e-3)
     active = np.ones(N, dtype=bool)
-    JtJ = np.zeros((N, 3, 3))
-    for it in range(iterations + 1):
+    JtJ = np.einsum("nri,nrj->nij", J, J)
+    eye = np.eye(3)[None]
+    for it in range(iterations):
         idx = np.nonzero(active)[0]
         if idx.size == 0:
             break
-        J = jacobian(x[idx], S0[idx], P[idx], idx)
-        JtJ[idx] = np.einsum("nri,nrj->nij", J, J)
-        if it == iterations:
-            break
-        g = np.einsum("nri,nr->ni", J, r[idx])
-        diag = np.einsum("nii->ni", JtJ[idx])
+        Ji = J[idx]
+        g = np.einsum("nri,nr->ni", Ji, r[idx])
+        H = JtJ[idx]
+        diag = np.einsum("nii->ni", H)
         scale = np.maximum(diag, 1e-9 * (diag.max(axis=1, keepdims=True) + 1e-30))
-        A = JtJ[idx] + (lam[idx][:, None] * scale)[:, :, None] * np.eye(3)[None]
+        A = H + (lam[idx][:, None] * scale)[:, :, None] * eye
         step = -np.linalg.solve(A, g[:, :, None])[:, :, 0]
         xn = project(x[idx] + step)
-        rn, S0n, Pn = evaluate(xn, idx)
+        rn, Jn = evaluate(xn, idx)
         cn = np.sum(rn ** 2, axis=1)
         better = cn < cost[idx]
         ib = idx[better]
         rel = (cost[idx] - cn)[better] / np.maximum(cost[ib], 1e-300)
-        x[ib], r[ib], S0[ib], P[ib], cost[ib] = xn[better], rn[better], S0n[better], Pn[better], cn[better]
+        x[ib], r[ib], J[ib], cost[ib] = xn[better], rn[better], Jn[better], cn[better]
+        JtJ[ib] = np.einsum("nri,nrj->nij", Jn[better], Jn[better])
         lam[ib] = np.maximum(lam[ib] * 0.3, 1e-9)
         lam[idx[~better]] *= 10.0
         done = np.zeros(N, dtype=bool)
@@ -297,13 +330,14 @@ def refine_pixels(model: FilmCamera, I_obs, angles_deg, zenith_deg, thickness_nm
         active &= ~done
     u, phi = _v_to_u_phi(x)
     zen = np.degrees(np.arcsin(np.sqrt(np.clip(u, 0.0, 1.0))))
-    data_cost = np.sum(r[:, :I_obs[0].size] ** 2, axis=1)
+    data_cost = np.sum(r[:, :n_data] ** 2, axis=1)
     return PixelFit(zen, np.mod(np.degrees(phi), 180.0), x[:, 2], cost, JtJ, data_cost)
 
 
-def invert_pixels(model: FilmCamera, I_obs, angles_deg, thickness_range_nm, table: CoarseTable | None = None,
-                  n_candidates: int = 3, weights=None, zenith_max_deg: float = 89.0,
-                  competitive_ratio: float = 4.0):
+def invert_pixels(model: FilmCamera, I_obs, angles_deg, thickness_range_nm, table: InversionTable | None = None,
+                  n_candidates: int = 5, weights=None, zenith_max_deg: float = 89.0,
+                  competitive_ratio: float = 4.0, screen_ratio: float = 50.0, screen_iterations: int = 4,
+                  neighbours: int = 32):
     """Coarse table search then LM refinement from each candidate; keep the best.
 
     Parameters
@@ -320,21 +354,37 @@ def invert_pixels(model: FilmCamera, I_obs, angles_deg, thickness_range_nm, tabl
     """
     I_obs = np.asarray(I_obs, dtype=np.float64)
     if table is None:
-        table = build_table(model, thickness_range_nm, zenith_max_deg)
+        table = build_table(model, thickness_range_nm, zenith_max_deg, refine_zenith_max_deg=zenith_max_deg + 0.5)
+    N = I_obs.shape[0]
     S0, S1, S2 = fit_stokes(np.moveaxis(I_obs, 1, 0), angles_deg)
-    zc, dc, pc, cc = coarse_search(table, S0, S1, S2, angles_deg, n_candidates)
+    zc, dc, pc, cc = coarse_search(table, S0, S1, S2, angles_deg, n_candidates, neighbours=neighbours)
     w = None if weights is None else np.asarray(weights, dtype=np.float64)
-    best = refine_pixels(model, I_obs, angles_deg, zc[:, 0], dc[:, 0], pc[:, 0], thickness_range_nm,
-                         zenith_max_deg=zenith_max_deg + 0.5, weights=w)
+    zmax = zenith_max_deg + 0.5
+
+    def refine(pix, cand, z, d, p, iterations):
+        return refine_pixels(table, I_obs[pix], angles_deg, z, d, p, zenith_max_deg=zmax,
+                             weights=None if w is None else w[pix], iterations=iterations)
+
+    # Stage 1: a few LM steps from every candidate that is not hopeless, so that basins are
+    # compared on costs near their minima rather than on the table's grid.
     floor = np.median(cc[:, 0])
-    for k in range(1, n_candidates):
-        idx = np.nonzero(cc[:, k] <= competitive_ratio * (cc[:, 0] + floor))[0]
-        if idx.size == 0:
-            continue
-        fit = refine_pixels(model, I_obs[idx], angles_deg, zc[idx, k], dc[idx, k], pc[idx, k],
-                            thickness_range_nm, zenith_max_deg=zenith_max_deg + 0.5,
-                            weights=None if w is None else w[idx])
-        b = fit.cost < best.cost[idx]
-        for name in ("zenith_deg", "azimuth_deg", "thickness_nm", "cost", "info", "data_cost"):
-            getattr(best, name)[idx[b]] = getattr(fit, name)[b]
-    return best
+    keep = np.isfinite(cc) & (cc <= screen_ratio * (cc[:, :1] + floor))
+    pix, cand = np.nonzero(keep)
+    fit = refine(pix, cand, zc[pix, cand], dc[pix, cand], pc[pix, cand], screen_iterations)
+    cost = np.full(cc.shape, np.inf)
+    cost[pix, cand] = fit.cost
+    # Stage 2: the competitive ones to convergence; the lowest cost wins.
+    best_cost = cost.min(axis=1)
+    floor = np.median(best_cost)
+    go = cost[pix, cand] <= competitive_ratio * (best_cost[pix] + floor)
+    pix, cand = pix[go], cand[go]
+    fit = refine(pix, cand, fit.zenith_deg[go], fit.thickness_nm[go], fit.azimuth_deg[go], 40)
+    order = np.lexsort((fit.cost, pix))                      # by pixel, then cost
+    first = np.ones(order.size, dtype=bool)
+    first[1:] = pix[order][1:] != pix[order][:-1]
+    sel = order[first]
+    out = PixelFit(*(np.empty((N,) + np.shape(getattr(fit, name))[1:]) for name in
+                     ("zenith_deg", "azimuth_deg", "thickness_nm", "cost", "info", "data_cost")))
+    for name in ("zenith_deg", "azimuth_deg", "thickness_nm", "cost", "info", "data_cost"):
+        getattr(out, name)[pix[sel]] = getattr(fit, name)[sel]
+    return out
