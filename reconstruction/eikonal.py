@@ -227,33 +227,14 @@ def _difference_operators(index, m):
     return gx, gy
 
 
-class _SpdSolver:
-    """Solves a sequence of similar symmetric positive definite systems (the Gauss-Newton steps
-    of :func:`refine_height`): the first by a sparse factorization (no pivoting, symmetric
-    ordering), the later ones by conjugate gradients preconditioned with that factorization,
-    started from the previous solution; a new factorization only when they stall."""
+def _solve_spd(A, b):
+    """Solve a sparse symmetric positive definite system: LU without pivoting on a symmetric
+    fill-reducing ordering (as a Cholesky factorization would; faster than general pivoting)."""
+    from scipy.sparse.linalg import splu
 
-    def __init__(self, rtol=1e-10, maxiter=60):
-        self.lu = None
-        self.rtol = rtol
-        self.maxiter = maxiter
-
-    def _factor(self, A):
-        from scipy.sparse.linalg import splu
-
-        self.lu = splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                       options={"SymmetricMode": True})
-
-    def solve(self, A, b, x0=None):
-        from scipy.sparse.linalg import LinearOperator, cg
-
-        if self.lu is not None and self.maxiter > 0:
-            M = LinearOperator(A.shape, matvec=self.lu.solve, dtype=np.float64)
-            x, info = cg(A, b, x0=x0, rtol=self.rtol, atol=0.0, maxiter=self.maxiter, M=M)
-            if info == 0:
-                return x
-        self._factor(A)
-        return self.lu.solve(b)
+    lu = splu(A.tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+              options={"SymmetricMode": True})
+    return lu.solve(b)
 
 
 def refine_height(z0, slope, weight, mask, smoothness=1.0, iterations=3, slope_cap=None):
@@ -296,7 +277,6 @@ def refine_height(z0, slope, weight, mask, smoothness=1.0, iterations=3, slope_c
     Gx, Gy = _difference_operators(index, m)
     L = _thin_plate(index, m)
     LtL = smoothness * (L.T @ L) + 1e-9 * sp.identity(n)
-    solver = _SpdSolver(maxiter=0)
     for _ in range(iterations):
         p, q = Gx @ z, Gy @ z
         g = np.hypot(p, q)
@@ -304,8 +284,8 @@ def refine_height(z0, slope, weight, mask, smoothness=1.0, iterations=3, slope_c
         ux = np.where(ok, p / np.where(ok, g, 1.0), 0.0)
         uy = np.where(ok, q / np.where(ok, g, 1.0), 0.0)
         J = sp.diags(ux) @ Gx + sp.diags(uy) @ Gy
-        A = (J.T @ sp.diags(wv) @ J + LtL).tocsc()
-        z = solver.solve(A, J.T @ (wv * sv), z)
+        A = J.T @ sp.diags(wv) @ J + LtL
+        z = _solve_spd(A, J.T @ (wv * sv))
         z -= z.max()
     out = np.full(m.shape, np.nan)
     out[m] = z

@@ -44,6 +44,7 @@ from thinfilm.errors import UserError
 
 from . import eikonal as _eik
 from . import spectral_model as _sm
+from .masks import mask_from_intensity, read_mask_file
 from .peaks import PEAK_NONE, PEAK_OK, PEAK_SEVERAL, find_peaks
 
 __all__ = [
@@ -113,18 +114,10 @@ def _check_cube(cube, wavelengths_nm, where="spectral_s"):
     return cube, wl
 
 
-def object_mask(cube, substrate_ior, min_pixels=10):
-    """Object pixels from the data: band-mean reflectance above a fifth of the bare substrate's
-    normal-incidence reflectance (the background reflects nothing), small specks removed."""
-    r0 = float(_sm.peak_reflectance(0.0, substrate_ior))
-    m = np.asarray(cube).mean(axis=2) > 0.2 * r0
-    lab, n = ndimage.label(m)
-    if n:
-        sizes = ndimage.sum(m, lab, index=np.arange(1, n + 1))
-        keep = np.zeros(n + 1, dtype=bool)
-        keep[1:] = sizes >= min_pixels
-        m = keep[lab]
-    return m
+def object_mask(cube):
+    """Object pixels of a spectral cube against its dark background: the project's intensity
+    mask (:func:`thinfilm.reconstruction.masks.mask_from_intensity`) of the band mean."""
+    return mask_from_intensity(np.asarray(cube).mean(axis=2))
 
 
 def check_peak_assumption(spectra, substrate_ior, noise=None):
@@ -319,7 +312,7 @@ def _levenberg_marquardt(S, theta0, thickness0, film_ior, substrate_ior, wavelen
         d[idx] = np.where(better, d_new, d[idx])
         cur[idx] = np.where(better[:, None], new, cur[idx])
         lam[idx] = np.where(better, l / 3.0, l * 5.0)
-        small = (np.abs(dd) < 1e-3) & (np.abs(dt) < 1e-6)
+        small = (np.abs(dd) < 1e-2) & (np.abs(dt) < 1e-5)
         active[idx] = ~(small & better) & (lam[idx] < 1e8)
     return th, d, cur
 
@@ -684,7 +677,7 @@ def reconstruct_spectral(cube, wavelengths_nm, substrate_ior, mask=None, method=
     if not (substrate_ior > 1.0):
         raise UserError(f"--substrate-ior: expected an index above 1, got {substrate_ior}")
     if mask is None:
-        mask = object_mask(cube, substrate_ior)
+        mask = object_mask(cube)
     mask = np.asarray(mask, dtype=bool)
     if mask.shape != cube.shape[:2]:
         raise UserError(f"--mask: shape {mask.shape} does not match the images {cube.shape[:2]}")
@@ -693,34 +686,9 @@ def reconstruct_spectral(cube, wavelengths_nm, substrate_ior, mask=None, method=
     t0 = time.perf_counter()
     est = METHODS[name](cube, wl, float(substrate_ior), mask)
     est.info["timings_s"]["total"] = time.perf_counter() - t0
+    est.info["object_pixels"] = int(mask.sum())
     est.info["method"] = "kobayashi" if name == "published" else name
     return est
-
-
-def _read_mask(path, shape):
-    from pathlib import Path
-
-    p = Path(path)
-    if not p.is_file():
-        raise UserError(f"{p}: mask file not found")
-    if p.suffix.lower() == ".exr":
-        from thinfilm.dataset import read_exr
-
-        ch = read_exr(p)
-        name = "mask" if "mask" in ch else sorted(ch)[0]
-        img = ch[name]
-    else:
-        try:
-            import matplotlib.image as mpimg
-
-            img = np.asarray(mpimg.imread(str(p)), dtype=np.float64)
-        except Exception as e:
-            raise UserError(f"{p}: not a readable mask image ({e})") from None
-        if img.ndim == 3:
-            img = img[..., :3].max(axis=-1)
-    if img.shape != tuple(shape):
-        raise UserError(f"{p}: mask has shape {img.shape}, expected {tuple(shape)}")
-    return img > 0
 
 
 def cli_main(args):
@@ -740,7 +708,7 @@ def cli_main(args):
         n3 = float(n3)
     except (TypeError, ValueError):
         raise UserError(f"{ds.path / 'meta.json'}: 'substrate_ior' must be a number, got {n3!r}") from None
-    mask = _read_mask(args.mask, ds.spectral_s.shape[:2]) if getattr(args, "mask", None) else None
+    mask = read_mask_file(args.mask, ds.spectral_s.shape[:2]) if getattr(args, "mask", None) else None
     est = reconstruct_spectral(ds.spectral_s, ds.wavelengths_nm, n3, mask=mask,
                                method=getattr(args, "method", None))
     timings = dict(est.info.pop("timings_s"))
@@ -750,7 +718,7 @@ def cli_main(args):
         "film_ior": est.film_ior,
         "substrate_ior": n3,
         "timings_s": timings,
-        "coverage": float(est.valid.sum() / max(1, (mask if mask is not None else object_mask(ds.spectral_s, n3)).sum())),
+        "coverage": float(est.valid.sum() / max(1, est.info["object_pixels"])),
         **est.info,
     }
     t0 = time.perf_counter()

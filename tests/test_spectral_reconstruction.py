@@ -106,6 +106,36 @@ def test_measured_model_adds_the_rice_bias_only_where_unpolarized():
     assert np.max(np.abs(biased[1] - plain[1])) < 0.05 * 1e-3
 
 
+def test_thickness_at_a_new_angle_matches_a_full_refit():
+    # the linear update near the fitted angle and the refit further away both land where a
+    # thickness-only fit from scratch at the new angle lands
+    rng = np.random.default_rng(3)
+    S = _spectra(THETA, THICK)
+    S = S + 1e-3 * rng.standard_normal(S.shape)
+    noise = np.full(S.shape[0], 1e-3)
+    th0 = np.radians(THETA)
+    th, d, neq = sp._levenberg_marquardt(S, th0, THICK + 2.0, N2, N3, WL, stokes_noise=noise)
+    for move_deg in (0.05, 0.2, 3.0):
+        new = th + np.radians(move_deg) * np.where(np.arange(th.size) % 2, 1.0, -1.0)
+        d_new = sp._thickness_at(S, new, th, d, neq, N2, N3, WL, noise)
+        _, d_ref, _, _ = sp.fit_angle_thickness(S, new, d, N2, N3, WL, iterations=30, fit_theta=False,
+                                                stokes_noise=noise)
+        np.testing.assert_allclose(d_new, d_ref, atol=0.02)
+        if move_deg >= 3.0:
+            assert np.max(np.abs(d_new - d)) > 1.0  # a real move, not the fitted value
+
+
+def test_unfolded_slope_inverts_the_folded_normal_mean():
+    stats = pytest.importorskip("scipy.stats")
+    sigma = 0.07
+    mu = np.array([0.0, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0])
+    observed = np.array([stats.foldnorm(m / sigma, scale=sigma).mean() for m in mu])
+    np.testing.assert_allclose(sp._unfold_magnitude(observed, sigma), mu, atol=2e-4)
+    # below the mean of |N(0, σ²)| the slope is 0; the fold does not touch large slopes
+    assert sp._unfold_magnitude(0.5 * sigma, sigma) == 0.0
+    assert sp._unfold_magnitude(20 * sigma, sigma) == pytest.approx(20 * sigma, rel=1e-12)
+
+
 # --- surfaces (numpy hemisphere, no rendering) ---------------------------------------------------
 
 def _hemisphere(res=64, d_nm=400.0, n2=N2, n3=N3):
