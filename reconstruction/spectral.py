@@ -20,12 +20,16 @@ Methods (``method=`` name → function, see :data:`METHODS`):
     2. ``n2`` once for the object: the (n2, m) search pooled over well-conditioned pixels
        (25°–65°), then a joint Gauss-Newton over the shared ``n2`` and every pixel's (θ, d);
     3. every pixel's (θ, d) by Levenberg-Marquardt on the whole spectrum through the optics
-       core (pixels without a peak are started from a coarse grid), with the variance of θ;
+       core (pixels without a peak are started from their nearest pixel with one, and from a
+       coarse grid where that fit stays poor), with the variance of θ;
     4. the surface as a whole: ``|∇z| = tan θ`` by fast marching from the occluding boundary,
        then a least-squares refinement weighted by each pixel's angle precision (the
        near-normal region, where the peak reflectance is flat in θ, is carried by the
-       surroundings); normals from the height field, with θ blended by precision;
-    5. thickness refitted per pixel at the final angle.
+       surroundings; there a measured slope, a magnitude, is biased upwards by its noise, so
+       the target is the slope whose folded-normal mean is the measurement); normals from
+       the height field, with θ blended by precision;
+    5. thickness at the final angle: the linear θ-d coupling of the fit near the fitted angle,
+       a refit where the angle moved further.
 
 The film must be optically thinner than the substrate (``n2 < n3``); otherwise the
 constructive-interference extremum is a minimum and the method does not apply. Spectra that
