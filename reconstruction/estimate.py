@@ -16,11 +16,15 @@ ESTIMATE_CHANNELS = ("normal.X", "normal.Y", "normal.Z", "zenith", "azimuth", "t
 
 
 def normals_to_angles(normals):
-    """Zenith θ = arccos(n_z) and azimuth φ = atan2(n_y, n_x) in [0, 360), both in degrees."""
+    """Zenith θ = arccos(n_z) and azimuth φ = atan2(n_y, n_x) in [0, 360), both in degrees.
+
+    The range holds in float32 too (files store float32): an azimuth a hair below 360 that
+    would round up to 360.0 in float32 is returned as 0.
+    """
     n = np.asarray(normals, dtype=np.float64)
     zenith = np.degrees(np.arccos(np.clip(n[..., 2], -1.0, 1.0)))
     azimuth = np.mod(np.degrees(np.arctan2(n[..., 1], n[..., 0])), 360.0)
-    azimuth = np.where(azimuth >= 360.0, 0.0, azimuth)  # a tiny negative angle rounds up to 360
+    azimuth = np.where(azimuth.astype(np.float32) >= np.float32(360.0), 0.0, azimuth)
     return zenith, azimuth
 
 

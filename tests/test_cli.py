@@ -87,3 +87,18 @@ def test_bad_input_one_line_exit_2(tmp_path, capsys, argv, message):
     err = capsys.readouterr().err.strip()
     assert message in err and len(err.splitlines()) == 1
     assert not (tmp_path / "out" / "x.exr").exists()
+
+
+@pytest.mark.parametrize("argv", [
+    ["generate", "hemisphere", "--out", "x", "--resolution", "0"],
+    ["generate", "hemisphere", "--out", "x", "--seed", "abc"],
+    ["reconstruct", "rgb", "data", "--out", "x", "--film-ior", "abc"],
+    ["reconstruct", "spectral"],
+    ["frobnicate"],
+])
+def test_usage_errors_are_one_line_exit_2(capsys, argv):
+    with pytest.raises(SystemExit) as e:
+        main(argv)
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "error:" in err

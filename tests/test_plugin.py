@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-tmm = pytest.importorskip("tmm")
+import tmm  # noqa: E402
 
 
 def _tmm_R(pol, theta_deg, lam, d, n2, n3, k3=0.0):
@@ -315,3 +315,14 @@ def test_thickness_gradient_matches_finite_differences(use_variant):
     grad = np.array(dr.grad(value)).ravel()
     assert np.abs(fd).max() > 1e-5
     np.testing.assert_allclose(grad, fd, rtol=2e-2, atol=2e-6)
+
+
+def test_exterior_index_in_plugin_matches_tmm(use_variant):
+    mi = use_variant("llvm_ad_mono_polarized")
+    theta = 35.0
+    scene = _plane_scene(mi, {"type": "thinfilm", "thickness": 300.0, "film_ior": 1.45,
+                              "substrate_ior": 1.7, "ext_ior": 1.33, "wavelength": 600.0}, theta, 0.0)
+    S0 = _stokes(mi, scene)[0]
+    args = ([1.33, 1.45, 1.7], [np.inf, 300.0, np.inf], np.radians(theta), 600.0)
+    ref = 0.5 * (tmm.coh_tmm("s", *args)["R"] + tmm.coh_tmm("p", *args)["R"])
+    np.testing.assert_allclose(S0, ref, atol=1e-4, rtol=0)

@@ -20,6 +20,13 @@ from .errors import UserError
 __all__ = ["main", "build_parser"]
 
 
+class _Parser(argparse.ArgumentParser):
+    """Usage errors as one line on stderr (``thinfilm: error: ...``), exit code 2."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
+
+
 def _positive_int(text):
     try:
         value = int(text)
@@ -31,7 +38,7 @@ def _positive_int(text):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = _Parser(
         prog="thinfilm",
         description="Spectral, polarized thin-film rendering, benchmark generation and reconstruction.",
     )

@@ -30,6 +30,7 @@ __all__ = [
     "write_exr",
     "read_dataset",
     "atomic_output_dir",
+    "check_output_dir",
     "pol_layer",
     "band_channel",
 ]
@@ -90,9 +91,27 @@ def _require(channels: dict, names, path, shape=None):
     return out
 
 
-def _no_nan(arr, path, name):
-    if not np.all(np.isfinite(arr)):
-        raise UserError(f"{path}: channel '{name}' contains NaN or infinite values")
+def _no_nan(arr, path, names):
+    """``arr`` (..., C) holds channels ``names`` (C); name the first one with NaN or inf."""
+    finite = np.isfinite(arr).reshape(-1, arr.shape[-1]).all(axis=0)
+    if not finite.all():
+        bad = names[int(np.argmin(finite))]
+        raise UserError(f"{path}: channel '{bad}' contains NaN or infinite values")
+
+
+def _check_meta(meta, meta_path):
+    if not isinstance(meta, dict):
+        raise UserError(f"{meta_path}: expected a JSON object, got {type(meta).__name__}")
+    for key in ("wavelengths_nm", "polarizer_angles_deg"):
+        if key not in meta:
+            continue
+        values = meta[key]
+        if not isinstance(values, list) or not all(
+                isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) for v in values):
+            raise UserError(f"{meta_path}: '{key}' must be a list of numbers, got {values!r}"[:300])
+    wl = meta.get("wavelengths_nm", [])
+    if len(wl) > 1 and np.any(np.diff(wl) <= 0):
+        raise UserError(f"{meta_path}: 'wavelengths_nm' must be increasing")
 
 
 @dataclass
@@ -139,7 +158,7 @@ class Dataset:
         raise UserError(f"{self.path}: dataset holds no image")
 
 
-def read_dataset(path, need=("polarized_rgb",)) -> Dataset:
+def read_dataset(path, need=("polarized_rgb",), optional=None) -> Dataset:
     """Read and validate a dataset folder.
 
     Parameters
@@ -148,7 +167,10 @@ def read_dataset(path, need=("polarized_rgb",)) -> Dataset:
         The folder.
     need : iterable of str
         Parts that must be present: any of ``"ground_truth"``, ``"polarized_rgb"``,
-        ``"spectral_s"``, ``"stokes"``. Other parts are read when present.
+        ``"spectral_s"``, ``"stokes"``.
+    optional : iterable of str or None
+        Parts read (and validated) only when present. ``None``: every part not in ``need``.
+        Parts in neither are not read at all.
 
     Raises
     ------
@@ -166,14 +188,24 @@ def read_dataset(path, need=("polarized_rgb",)) -> Dataset:
         meta = json.loads(meta_path.read_text())
     except json.JSONDecodeError as e:
         raise UserError(f"{meta_path}: not valid JSON ({e.msg} at line {e.lineno})") from None
+    _check_meta(meta, meta_path)
     if meta.get("format") != FORMAT:
         raise UserError(f"{meta_path}: unknown format {meta.get('format')!r}, expected '{FORMAT}'")
     need = set(need)
+    parts = {"ground_truth", "polarized_rgb", "spectral_s", "stokes"}
+    unknown = need - parts
+    if unknown:
+        raise ValueError(f"read_dataset: unknown parts {sorted(unknown)}")
+    wanted = need | (parts - need if optional is None else set(optional))
     ds = Dataset(path=root, meta=meta)
     shape = None
+    file_part = {"ground_truth.exr": "ground_truth", "polarized_rgb.exr": "polarized_rgb",
+                 "spectral_s.exr": "spectral_s", "stokes_spectral.exr": "stokes"}
 
     def load(name, required):
         p = root / name
+        if file_part[name] not in wanted:
+            return None
         if not p.is_file():
             if required:
                 raise UserError(f"{p}: file not found")
@@ -201,7 +233,7 @@ def read_dataset(path, need=("polarized_rgb",)) -> Dataset:
             layer = pol_layer(a)
             rgb = _require(ch, [f"{layer}.R", f"{layer}.G", f"{layer}.B"], p, shape)
             img = np.stack(list(rgb.values()), axis=-1)
-            _no_nan(img, p, layer)
+            _no_nan(img, p, list(rgb))
             ds.polarized_rgb[int(round(a)) % 360] = img
 
     bands = meta.get("wavelengths_nm", [])
@@ -213,7 +245,7 @@ def read_dataset(path, need=("polarized_rgb",)) -> Dataset:
         if not names:
             raise UserError(f"{meta_path}: 'wavelengths_nm' is empty but {p.name} is present")
         cube = np.stack(list(_require(ch, names, p, shape).values()), axis=-1)
-        _no_nan(cube, p, "band*")
+        _no_nan(cube, p, names)
         ds.spectral_s = cube
 
     got = load("stokes_spectral.exr", "stokes" in need)
@@ -223,33 +255,73 @@ def read_dataset(path, need=("polarized_rgb",)) -> Dataset:
         for s in ("S0", "S1", "S2"):
             names = [f"{s}.{band_channel(i)}" for i in range(len(bands))]
             cube = np.stack(list(_require(ch, names, p, shape).values()), axis=-1)
-            _no_nan(cube, p, s)
+            _no_nan(cube, p, names)
             ds.stokes[s] = cube
     return ds
 
 
+#: Files that mark a folder as one of ours (dataset, estimate, evaluation, benchmark):
+#: only such folders, or empty ones, are replaced by a new output.
+OUTPUT_MARKERS = ("meta.json", "estimate.json", "metrics.json", "results.json")
+
+
+def check_output_dir(out, markers=OUTPUT_MARKERS) -> Path:
+    """Check that ``out`` can receive a new output folder, before any work is done.
+
+    ``out`` may not exist yet, may be an empty folder, or may be an earlier output of ours
+    (it holds one of ``markers``), which will be replaced. Anything else (a file, a folder of
+    someone's files) is refused with a :class:`UserError`, so no user data is ever deleted.
+
+    Returns the absolute path.
+    """
+    out = Path(out).expanduser().resolve()
+    if out.parent == out:
+        raise UserError(f"--out {out}: cannot write an output folder at the file-system root")
+    if out.exists():
+        if not out.is_dir():
+            raise UserError(f"--out {out}: exists and is not a folder")
+        if any(out.iterdir()) and not any((out / m).is_file() for m in markers):
+            raise UserError(f"--out {out}: folder exists, is not empty and is not a thinfilm "
+                            f"output; refusing to replace it")
+    return out
+
+
 @contextlib.contextmanager
-def atomic_output_dir(out):
+def atomic_output_dir(out, markers=OUTPUT_MARKERS):
     """Yield a temporary folder beside ``out``; on success rename it to ``out``.
 
-    On any error the temporary folder is removed, so no half-written output is left.
-    An existing ``out`` is replaced only after the new one is complete.
+    On any error the temporary folder is removed, so no half-written output is left. An
+    existing ``out`` is replaced only after the new one is complete, and only if it is empty
+    or an earlier output of ours (:func:`check_output_dir`). File-system errors become a
+    :class:`UserError` naming ``--out``.
     """
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-", dir=out.parent))
+    out = check_output_dir(out, markers)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-", dir=out.parent))
+    except OSError as e:
+        raise UserError(f"--out {out}: cannot create the folder ({e.strerror})") from None
     try:
         yield tmp
+        check_output_dir(out, markers)  # still safe to replace after the work
+        old = None
+        if out.exists():
+            old = out.with_name(f".{out.name}.old-{os.getpid()}")
+            out.rename(old)
+        try:
+            tmp.rename(out)
+        except OSError:
+            if old is not None:
+                old.rename(out)
+            raise
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
+    except OSError as e:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise UserError(f"--out {out}: cannot write the output ({e.strerror or e})") from None
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
-    old = None
-    if out.exists():
-        old = out.with_name(f".{out.name}.old-{os.getpid()}")
-        out.rename(old)
-    tmp.rename(out)
-    if old is not None:
-        shutil.rmtree(old, ignore_errors=True)
 
 
 def write_json(path, data) -> None:
