@@ -204,3 +204,13 @@ def test_exterior_medium_other_than_air_matches_tmm(n1):
             ref_s = tmm.coh_tmm("s", n_list, d_list, np.radians(theta), 520.0)["r"]
             ref_p = tmm.coh_tmm("p", n_list, d_list, np.radians(theta), 520.0)["r"]
             assert abs(r_s - ref_s) < 1e-9 and abs(r_p - ref_p) < 1e-9
+
+
+def test_weak_absorption_keeps_its_precision():
+    """A nearly lossless film (k2 = 1e-9) near total internal reflection: the tiny absorption
+    must survive the complex square root (found by the energy property test)."""
+    args = ([1.0, complex(1.0, 1e-9), 0.5], [np.inf, 1.0, np.inf], np.radians(31.0), 350.0)
+    R_s, R_p = optics.reflectances(np.cos(np.radians(31.0)), 350.0, 1.0, 1.0, 0.5, film_k=1e-9)
+    assert abs(R_s - tmm.coh_tmm("s", *args)["R"]) < 1e-13
+    assert abs(R_p - tmm.coh_tmm("p", *args)["R"]) < 1e-13
+    assert R_s < 1.0 and R_p < 1.0

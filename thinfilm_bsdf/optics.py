@@ -209,11 +209,18 @@ class Complex:
 
 
 def _csqrt(z: Complex, ops) -> Complex:
-    """Principal square root (Re >= 0; Im has the sign of Im z, +0 counted positive)."""
-    r = ops.sqrt(z.re * z.re + z.im * z.im)
-    re = ops.sqrt(ops.maximum(0.5 * (r + z.re), 0.0))
-    im = ops.sqrt(ops.maximum(0.5 * (r - z.re), 0.0))
-    return Complex(re, ops.select(z.im < 0, -im, im))
+    """Principal square root (Re >= 0; Im has the sign of Im z, +0 counted positive).
+
+    The numerically stable form: ``t = sqrt((|z| + |Re z|)/2)`` and the other component
+    as ``Im z / (2t)``, so a nearly real argument (a weakly absorbing medium) keeps its
+    small imaginary part accurately instead of losing it to cancellation.
+    """
+    t = ops.sqrt(0.5 * (ops.sqrt(z.re * z.re + z.im * z.im) + ops.abs(z.re)))
+    small = ops.select(t > 0, 0.5 * z.im / ops.select(t > 0, t, 1.0), 0.0 * t)
+    positive = z.re >= 0
+    re = ops.select(positive, t, ops.abs(small))
+    im = ops.select(positive, small, ops.select(z.im < 0, -t, t))
+    return Complex(re, im)
 
 
 def _cexp_i(z: Complex, ops) -> Complex:
