@@ -381,7 +381,9 @@ def load_spec(spec_or_preset, overrides=(), resolution=None, seed=None) -> dict:
     Notes
     -----
     A film index >= the substrate index prints a one-line warning on stderr: the spectral
-    method assumes n_film < n_substrate (constructive-interference peaks).
+    method assumes n_film < n_substrate (constructive-interference peaks). An absorbing
+    substrate (``substrate.k > 0``) prints one too: ``spectral_s`` (S0 + sqrt(S1² + S2²)) is
+    then max(R_s, R_p), which is R_s only on a dielectric substrate.
     """
     if isinstance(spec_or_preset, dict):
         raw, source, base_dir = copy.deepcopy(spec_or_preset), "scene spec", Path.cwd()
@@ -477,6 +479,10 @@ def _warn_indices(spec: dict) -> None:
     if n_film >= n_sub:
         print(f"thinfilm: warning: film index {n_film:g} >= substrate index {n_sub:g}; the spectral "
               f"reconstruction assumes n_film < n_substrate", file=sys.stderr)
+    k_sub = spec["substrate"]["k"]
+    if k_sub > 0:
+        print(f"thinfilm: warning: substrate k = {k_sub:g} > 0 (absorbing); spectral_s = S0 + sqrt(S1² + S2²) "
+              f"then holds max(R_s, R_p), not R_s", file=sys.stderr)
 
 
 def wavelength_grid(rig: dict):

@@ -24,23 +24,25 @@ def make_dataset(tmp_path_factory, name, spec):
     return read_dataset(out, need=("ground_truth", "polarized_rgb", "spectral_s", "stokes"))
 
 
-def tmm_rs_rp(zenith_deg, wavelength_nm, thickness_nm, n_film, n_sub):
-    """R_s, R_p of air | film | substrate from the ``tmm`` package (independent reference)."""
+def tmm_rs_rp(zenith_deg, wavelength_nm, thickness_nm, n_film, n_sub, k_sub=0.0):
+    """R_s, R_p of air | film | substrate (index ``n_sub + i k_sub``) from the ``tmm`` package
+    (independent reference)."""
     import tmm
 
     th = math.radians(float(zenith_deg))
-    nl, dl = [1.0, float(n_film), float(n_sub)], [np.inf, float(thickness_nm), np.inf]
+    sub = complex(float(n_sub), float(k_sub)) if k_sub else float(n_sub)
+    nl, dl = [1.0, float(n_film), sub], [np.inf, float(thickness_nm), np.inf]
     return (tmm.coh_tmm("s", nl, dl, th, float(wavelength_nm))["R"],
             tmm.coh_tmm("p", nl, dl, th, float(wavelength_nm))["R"])
 
 
-def tmm_band(zenith_deg, centre_nm, fwhm_nm, thickness_nm, n_film, n_sub, pol="s", dense_nm=0.1):
+def tmm_band(zenith_deg, centre_nm, fwhm_nm, thickness_nm, n_film, n_sub, pol="s", dense_nm=0.1, k_sub=0.0):
     """Gaussian-passband average of tmm's R (dense Riemann sum over ±6 sigma)."""
     sigma = fwhm_nm / (2 * math.sqrt(2 * math.log(2)))
     lam = centre_nm + np.arange(-6 * sigma, 6 * sigma + dense_nm / 2, dense_nm)
     w = np.exp(-0.5 * ((lam - centre_nm) / sigma) ** 2)
     idx = 0 if pol == "s" else 1
-    r = np.array([tmm_rs_rp(zenith_deg, x, thickness_nm, n_film, n_sub)[idx] for x in lam])
+    r = np.array([tmm_rs_rp(zenith_deg, x, thickness_nm, n_film, n_sub, k_sub)[idx] for x in lam])
     return float(np.sum(w * r) / np.sum(w))
 
 

@@ -61,6 +61,15 @@ def test_film_index_not_below_substrate_warns(capsys):
     assert capsys.readouterr().err == ""
 
 
+def test_absorbing_substrate_warns_that_spectral_s_is_not_rs(capsys):
+    load_spec("hemisphere", overrides=["substrate.k=0.8"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("thinfilm: warning: substrate k = 0.8 > 0")
+    assert "max(R_s, R_p), not R_s" in err[0]
+    load_spec("hemisphere", overrides=["substrate.k=0"])
+    assert capsys.readouterr().err == ""
+
+
 def test_dict_specs_and_named_materials():
     spec = load_spec({"film": {"ior": "MgF2"}, "shape": {"kind": "pyramid"}})
     assert spec["film"]["ior"] == "MgF2" and spec["shape"]["base"] == 2.0
@@ -140,7 +149,6 @@ def test_refuses_to_replace_a_folder_that_is_not_a_dataset(tmp_path, capsys):
 
 
 def test_unreadable_mesh_fails_cleanly(tmp_path, capsys):
-    pytest.importorskip("mitsuba")
     bad = tmp_path / "junk.ply"
     bad.write_text("this is not a mesh\n")
     out = tmp_path / "o"
