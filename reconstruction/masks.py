@@ -173,30 +173,50 @@ def resolve_azimuth(azimuth_deg, zenith_deg, mask, confidence=None, seed_band_px
     # equal confidence are resolved ring by ring from the boundary inwards).
     level = np.floor(wgt / max(float(wgt.max()), 1e-12) * 10.0)
     resolved = seeds.copy()
-    vx = np.where(resolved, sign * wgt * d[..., 0], 0.0)
-    vy = np.where(resolved, sign * wgt * d[..., 1], 0.0)
-    queued = resolved.copy()
+    # Resolved normals' image-plane parts, weighted, as complex numbers x + iy, and their
+    # sums over each pixel's window (kept up to date as pixels are resolved).
+    dz = d[..., 0] + 1j * d[..., 1]
+    v = np.where(resolved, sign * wgt * dz, 0.0)
+    vp = np.pad(v, window)
+    box = sum(vp[i:i + H, j:j + W] for i in range(2 * window + 1) for j in range(2 * window + 1))
+    # Per-pixel scalars as flat Python lists: the flood below is sequential.
+    acc = box.ravel().tolist()
+    key_level = (-level).ravel().tolist()
+    key_dist = dist.ravel().tolist()
+    open_ = (mask & ~resolved).ravel().tolist()      # in the mask, not yet queued
+    dzf = dz.ravel().tolist()
+    wf = wgt.ravel().tolist()
+    alf = align.ravel().tolist()
+    signf = sign.ravel()
     heap = []
+    push, pop = heapq.heappush, heapq.heappop
     offsets = [(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx]
 
     def push_neighbours(r, c):
         for dy, dx in offsets:
             rr, cc = r + dy, c + dx
-            if 0 <= rr < H and 0 <= cc < W and mask[rr, cc] and not queued[rr, cc]:
-                queued[rr, cc] = True
-                heapq.heappush(heap, (-level[rr, cc], dist[rr, cc], rr * W + cc))
+            if 0 <= rr < H and 0 <= cc < W:
+                k = rr * W + cc
+                if open_[k]:
+                    open_[k] = False
+                    push(heap, (key_level[k], key_dist[k], k))
 
     for r, c in zip(*np.nonzero(seeds)):
-        push_neighbours(r, c)
+        push_neighbours(int(r), int(c))
     while heap:
-        k = heapq.heappop(heap)[2]
+        k = pop(heap)[2]
         r, c = divmod(k, W)
-        r0, r1, c0, c1 = max(r - window, 0), min(r + window + 1, H), max(c - window, 0), min(c + window + 1, W)
-        agree = d[r, c, 0] * vx[r0:r1, c0:c1].sum() + d[r, c, 1] * vy[r0:r1, c0:c1].sum()
-        s = 1.0 if (agree > 0 or (agree == 0 and align[r, c] >= 0)) else -1.0
-        sign[r, c] = s
-        vx[r, c] = s * wgt[r, c] * d[r, c, 0]
-        vy[r, c] = s * wgt[r, c] * d[r, c, 1]
+        a = acc[k]
+        dk = dzf[k]
+        agree = dk.real * a.real + dk.imag * a.imag
+        s = 1.0 if (agree > 0 or (agree == 0 and alf[k] >= 0)) else -1.0
+        signf[k] = s
+        val = s * wf[k] * dk
+        c0, c1 = max(c - window, 0), min(c + window + 1, W)
+        for rr in range(max(r - window, 0), min(r + window + 1, H)):
+            for kk in range(rr * W + c0, rr * W + c1):
+                acc[kk] += val
         push_neighbours(r, c)
+    sign = signf.reshape(H, W)
     az = np.where(sign < 0, phi + np.pi, phi)
     return np.where(mask, np.mod(np.degrees(az), 360.0), np.nan)

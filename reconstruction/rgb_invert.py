@@ -134,7 +134,7 @@ def _cost_weights(angles_deg):
 
 
 def coarse_search(table: InversionTable, S0, S1, S2, angles_deg, n_candidates: int = 3,
-                  basin_nm: float = 40.0, neighbours: int = 32):
+                  basin_nm: float = 40.0, neighbours: int = 32, eps: float = 0.3):
     """Best table entries per pixel, from distinct thickness basins.
 
     Parameters
@@ -164,7 +164,7 @@ def coarse_search(table: InversionTable, S0, S1, S2, angles_deg, n_candidates: i
     obs = np.concatenate([np.concatenate([r0 * S0, -r1 * p], axis=1),
                           np.concatenate([r0 * S0, r1 * p], axis=1)])
     k = min(neighbours, len(table.S0))
-    _, idx = tree.query(obs, k=k, workers=-1)
+    _, idx = tree.query(obs, k=k, eps=eps, workers=-1)
     idx = np.asarray(idx).reshape(2, N, k).transpose(1, 0, 2).reshape(N, 2 * k)
     # Exact costs of those entries, with the best azimuth of each.
     tS0, tP = table.S0[idx], table.P[idx]                                  # (N, 2k, 3)
@@ -300,14 +300,14 @@ def refine_pixels(table: InversionTable, I_obs, angles_deg, zenith_deg, thicknes
     cost = np.sum(r ** 2, axis=1)
     lam = np.full(N, 1e-3)
     active = np.ones(N, dtype=bool)
-    JtJ = np.einsum("nri,nrj->nij", J, J)
+    JtJ = np.matmul(J.transpose(0, 2, 1), J)
     eye = np.eye(3)[None]
     for it in range(iterations):
         idx = np.nonzero(active)[0]
         if idx.size == 0:
             break
         Ji = J[idx]
-        g = np.einsum("nri,nr->ni", Ji, r[idx])
+        g = np.matmul(Ji.transpose(0, 2, 1), r[idx][:, :, None])[:, :, 0]
         H = JtJ[idx]
         diag = np.einsum("nii->ni", H)
         scale = np.maximum(diag, 1e-9 * (diag.max(axis=1, keepdims=True) + 1e-30))
@@ -320,7 +320,8 @@ def refine_pixels(table: InversionTable, I_obs, angles_deg, zenith_deg, thicknes
         ib = idx[better]
         rel = (cost[idx] - cn)[better] / np.maximum(cost[ib], 1e-300)
         x[ib], r[ib], J[ib], cost[ib] = xn[better], rn[better], Jn[better], cn[better]
-        JtJ[ib] = np.einsum("nri,nrj->nij", Jn[better], Jn[better])
+        Jb = Jn[better]
+        JtJ[ib] = np.matmul(Jb.transpose(0, 2, 1), Jb)
         lam[ib] = np.maximum(lam[ib] * 0.3, 1e-9)
         lam[idx[~better]] *= 10.0
         done = np.zeros(N, dtype=bool)
@@ -337,7 +338,7 @@ def refine_pixels(table: InversionTable, I_obs, angles_deg, zenith_deg, thicknes
 def invert_pixels(model: FilmCamera, I_obs, angles_deg, thickness_range_nm, table: InversionTable | None = None,
                   n_candidates: int = 5, weights=None, zenith_max_deg: float = 89.0,
                   competitive_ratio: float = 4.0, screen_ratio: float = 50.0, screen_iterations: int = 4,
-                  neighbours: int = 32):
+                  neighbours: int = 32, eps: float = 0.3):
     """Coarse table search then LM refinement from each candidate; keep the best.
 
     Parameters
@@ -357,7 +358,7 @@ def invert_pixels(model: FilmCamera, I_obs, angles_deg, thickness_range_nm, tabl
         table = build_table(model, thickness_range_nm, zenith_max_deg, refine_zenith_max_deg=zenith_max_deg + 0.5)
     N = I_obs.shape[0]
     S0, S1, S2 = fit_stokes(np.moveaxis(I_obs, 1, 0), angles_deg)
-    zc, dc, pc, cc = coarse_search(table, S0, S1, S2, angles_deg, n_candidates, neighbours=neighbours)
+    zc, dc, pc, cc = coarse_search(table, S0, S1, S2, angles_deg, n_candidates, neighbours=neighbours, eps=eps)
     w = None if weights is None else np.asarray(weights, dtype=np.float64)
     zmax = zenith_max_deg + 0.5
 
