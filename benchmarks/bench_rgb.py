@@ -3,14 +3,16 @@
 Usage::
 
     .venv/bin/python benchmarks/bench_rgb.py [--resolution 128] [--presets cylinder pyramid]
-                                             [--work /tmp/bench_rgb]
+                                             [--work /tmp/bench_rgb] [--repeat 1]
 
 For each preset a dataset is generated with the preset's default camera noise (reused when
-already present in ``--work``), every method of ``thinfilm.reconstruction.rgb.METHODS`` is
-run, and the estimate is scored against the ground truth over the object mask: coverage,
-normal error (mean, p95), zenith error, thickness error (mean, p95), and wall time. Times are
-printed in seconds and as a ratio to the paper's method (the baseline measured in the same
-run), together with the issue's accuracy targets for the default method.
+already present in ``--work``), the paper's and the default method of
+``thinfilm.reconstruction.rgb.METHODS`` are run, and the estimate is scored against the ground
+truth over the object mask: coverage, normal error (mean, p95), zenith error, thickness error
+(mean, p95). Speed: wall time in seconds (the best of ``--repeat`` runs), the process's CPU
+time (all threads; on a busy machine it shows the work done better than the wall time), and
+the ratio default / paper of the wall times, the paper's method being the baseline measured
+in the same run. The issue's accuracy targets for the default method are checked.
 """
 
 from __future__ import annotations
@@ -57,6 +59,7 @@ def main(argv=None):
     ap.add_argument("--resolution", type=int, default=128)
     ap.add_argument("--presets", nargs="+", default=["cylinder", "pyramid"])
     ap.add_argument("--work", default="/tmp/bench_rgb")
+    ap.add_argument("--repeat", type=int, default=1, help="runs per method; the fastest is reported")
     args = ap.parse_args(argv)
     work = Path(args.work)
     work.mkdir(parents=True, exist_ok=True)
@@ -65,27 +68,34 @@ def main(argv=None):
     for preset in args.presets:
         ds = ensure_dataset(preset, args.resolution, work)
         capture, _ = rgb.capture_from_dataset(ds)
-        times = {}
+        wall = {}
         for method in (rgb.PAPER_METHOD, rgb.DEFAULT_METHOD):
-            t0 = time.perf_counter()
-            result = rgb.reconstruct(capture, method)
-            times[method] = time.perf_counter() - t0
-            s = score(ds, result)
-            rows.append((preset, method, s, times[method], times[method] / times[rgb.PAPER_METHOD]))
+            best = (np.inf, np.inf)
+            for _ in range(max(1, args.repeat)):
+                t0, c0 = time.perf_counter(), time.process_time()
+                result = rgb.reconstruct(capture, method)
+                best = min(best, (time.perf_counter() - t0, time.process_time() - c0))
+            wall[method] = best[0]
+            rows.append((preset, method, score(ds, result), best[0], best[1], best[0] / wall[rgb.PAPER_METHOD]))
 
     print(f"\nRGB reconstruction, {args.resolution}x{args.resolution}, default camera noise")
     print(f"{'preset':<11}{'method':<15}{'cover':>7}{'normal':>8}{'p95':>7}{'zenith':>8}"
-          f"{'thick nm':>10}{'p95':>7}{'time s':>9}{'x paper':>9}")
-    for preset, method, s, t, ratio in rows:
+          f"{'thick nm':>10}{'p95':>7}{'wall s':>9}{'cpu s':>8}{'x paper':>9}")
+    for preset, method, s, t, cpu, ratio in rows:
         print(f"{preset:<11}{method:<15}{s['coverage']:>7.3f}{s['normal_mean_deg']:>8.2f}"
               f"{s['normal_p95_deg']:>7.2f}{s['zenith_mean_deg']:>8.2f}{s['thickness_mean_nm']:>10.2f}"
-              f"{s['thickness_p95_nm']:>7.1f}{t:>9.1f}{ratio:>9.2f}")
+              f"{s['thickness_p95_nm']:>7.1f}{t:>9.2f}{cpu:>8.2f}{ratio:>9.2f}")
+    print(f"speed, wall time default ({rgb.DEFAULT_METHOD}) / paper ({rgb.PAPER_METHOD}):")
+    for preset in args.presets:
+        t = {m: w for p, m, _, w, _, _ in rows if p == preset}
+        print(f"  {preset:<11}{t[rgb.DEFAULT_METHOD]:7.2f} s / {t[rgb.PAPER_METHOD]:7.2f} s = "
+              f"{t[rgb.DEFAULT_METHOD] / t[rgb.PAPER_METHOD]:.2f}")
     print("targets (default method): coverage >= 0.90, normal mean <= 3 deg, p95 <= 8 deg, "
           "thickness mean <= 10 nm")
     ok = all(s["coverage"] >= TARGETS["coverage"] and s["normal_mean_deg"] <= TARGETS["normal_mean_deg"]
              and s["normal_p95_deg"] <= TARGETS["normal_p95_deg"]
              and s["thickness_mean_nm"] <= TARGETS["thickness_mean_nm"]
-             for _, method, s, _, _ in rows if method == rgb.DEFAULT_METHOD)
+             for _, method, s, _, _, _ in rows if method == rgb.DEFAULT_METHOD)
     print("default method meets the targets:", "yes" if ok else "NO")
     return 0 if ok else 1
 

@@ -164,8 +164,8 @@ def coarse_search(table: InversionTable, S0, S1, S2, angles_deg, n_candidates: i
     obs = np.concatenate([np.concatenate([r0 * S0, -r1 * p], axis=1),
                           np.concatenate([r0 * S0, r1 * p], axis=1)])
     k = min(neighbours, len(table.S0))
-    _, idx = tree.query(obs, k=k, eps=eps, workers=-1)
-    idx = np.asarray(idx).reshape(2, N, k).transpose(1, 0, 2).reshape(N, 2 * k)
+    _, idx = tree.query(np.nan_to_num(obs, nan=0.0, posinf=0.0, neginf=0.0), k=k, eps=eps, workers=-1)
+    idx = np.minimum(np.asarray(idx).reshape(2, N, k).transpose(1, 0, 2).reshape(N, 2 * k), len(table.S0) - 1)
     # Exact costs of those entries, with the best azimuth of each.
     tS0, tP = table.S0[idx], table.P[idx]                                  # (N, 2k, 3)
     Y1 = np.einsum("nc,nec->ne", S1, tP)
@@ -337,7 +337,7 @@ def refine_pixels(table: InversionTable, I_obs, angles_deg, zenith_deg, thicknes
 
 def invert_pixels(model: FilmCamera, I_obs, angles_deg, thickness_range_nm, table: InversionTable | None = None,
                   n_candidates: int = 5, weights=None, zenith_max_deg: float = 89.0,
-                  competitive_ratio: float = 4.0, screen_ratio: float = 50.0, screen_iterations: int = 4,
+                  competitive_ratio: float = 4.0, screen_ratio: float = 50.0, screen_iterations: int = 3,
                   neighbours: int = 32, eps: float = 0.3):
     """Coarse table search then LM refinement from each candidate; keep the best.
 

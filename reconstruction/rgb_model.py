@@ -19,6 +19,7 @@ linearly in ``u`` near normal incidence, which keeps the inversion well conditio
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -115,17 +116,36 @@ class FilmCamera:
 # A smooth tabulation of the model for fast inversion
 # ------------------------------------------------------------------------------------------
 
-def _not_a_knot_operator(n: int) -> np.ndarray:
-    """(n + 2, n) matrix taking values at n equally spaced nodes to the coefficients of the
-    uniform cubic B-spline that interpolates them, with the not-a-knot end conditions (third
-    derivative continuous at the second and the second-to-last node), so the interpolation
-    error is O(h⁴) up to the ends of the table."""
-    M = np.zeros((n + 2, n + 2))
-    for i in range(n):                      # value at node i: (a[i-1] + 4 a[i] + a[i+1]) / 6
-        M[i, i:i + 3] = (1.0 / 6.0, 4.0 / 6.0, 1.0 / 6.0)
-    M[n, 0:5] = (-1.0, 4.0, -6.0, 4.0, -1.0)
-    M[n + 1, n - 3:n + 2] = (-1.0, 4.0, -6.0, 4.0, -1.0)
-    return np.linalg.inv(M)[:, :n]
+def _not_a_knot_coefficients(values: np.ndarray, axis: int) -> np.ndarray:
+    """Coefficients of the uniform cubic B-spline interpolating ``values`` at equally spaced
+    nodes along ``axis`` (n nodes → n + 2 coefficients), with the not-a-knot end conditions
+    (third derivative continuous at the second and the second-to-last node), so the
+    interpolation error is O(h⁴) up to the ends of the table.
+
+    The system, ordered [first end condition; value at node 0 … n-1; last end condition],
+    is banded (4 below, 4 above the diagonal); the value at node i is
+    ``(a[i-1] + 4 a[i] + a[i+1]) / 6`` with ``a`` indexed from -1.
+    """
+    from scipy.linalg import solve_banded
+
+    v = np.moveaxis(np.asarray(values, dtype=np.float64), axis, 0)
+    n = v.shape[0]
+    m = n + 2
+    ab = np.zeros((9, m))                       # ab[4 + i - j, j] = M[i, j]
+
+    def put(i, j, x):
+        ab[4 + i - j, j] = x
+
+    for j, x in enumerate((-1.0, 4.0, -6.0, 4.0, -1.0)):
+        put(0, j, x)
+        put(m - 1, m - 5 + j, x)
+    for i in range(n):
+        for j, x in ((i, 1.0 / 6.0), (i + 1, 4.0 / 6.0), (i + 2, 1.0 / 6.0)):
+            put(i + 1, j, x)
+    rhs = np.zeros((m,) + v.shape[1:])
+    rhs[1:-1] = v
+    a = solve_banded((4, 4), ab, rhs.reshape(m, -1)).reshape(rhs.shape)
+    return np.moveaxis(a, 0, axis)
 
 
 def _bspline_weights(x, x0: float, h: float, n: int):
@@ -174,13 +194,18 @@ class FilmTable:
     cos_range: tuple
     thickness_range_nm: tuple
 
+    #: largest table (bytes) whose 4 × 4 coefficient blocks are stored contiguously
+    BLOCKS_MAX_BYTES = 256 * 2 ** 20
+
     def __post_init__(self):
-        # Every 4 × 4 block of coefficients stored contiguously: one row gather per point.
+        # Every 4 × 4 block of coefficients stored contiguously (16 times the coefficients'
+        # memory): one row gather per point instead of sixteen.
         from numpy.lib.stride_tricks import sliding_window_view
 
-        nc, nd = self.coef.shape[:2]
-        w = sliding_window_view(self.coef, (4, 4), axis=(0, 1))            # (nc-3, nd-3, 6, 4, 4)
-        self._blocks = np.ascontiguousarray(w.transpose(0, 1, 3, 4, 2)).reshape(-1, 96)
+        self._blocks = None
+        if 16 * self.coef.nbytes <= self.BLOCKS_MAX_BYTES:
+            w = sliding_window_view(self.coef, (4, 4), axis=(0, 1))            # (nc-3, nd-3, 6, 4, 4)
+            self._blocks = np.ascontiguousarray(w.transpose(0, 1, 3, 4, 2)).reshape(-1, 96)
 
     def s0_q(self, cos_theta, thickness_nm, derivatives: bool = False):
         """Spline values of ``S0`` and ``Q`` (each (N, 3)) at 1-D arrays of points; with
@@ -191,7 +216,12 @@ class FilmTable:
         n = c.size
         ic, wc, dwc = _bspline_weights(c, self.cos_lo, self.cos_step, self.n_cos)
         jd, wd, dwd = _bspline_weights(d, self.thickness_lo_nm, self.thickness_step_nm, self.n_thickness)
-        G = np.take(self._blocks, ic * (self.n_thickness - 1) + jd, axis=0).reshape(n, 16, 6)
+        if self._blocks is not None:
+            G = np.take(self._blocks, ic * (self.n_thickness - 1) + jd, axis=0).reshape(n, 16, 6)
+        else:
+            nd = self.n_thickness + 2
+            k = (ic * nd + jd)[:, None] + (np.arange(4)[:, None] * nd + np.arange(4)[None, :]).ravel()
+            G = np.take(self.coef.reshape(-1, 6), k, axis=0)
         W = np.empty((n, 3 if derivatives else 1, 4, 4))
         W[:, 0] = wc[:, :, None] * wd[:, None, :]
         if derivatives:
@@ -201,6 +231,11 @@ class FilmTable:
         if not derivatives:
             return f[:, 0, :3], f[:, 0, 3:]
         return f[:, 0, :3], f[:, 0, 3:], f[:, 1, :3], f[:, 1, 3:], f[:, 2, :3], f[:, 2, 3:]
+
+
+#: grid size from which :func:`film_table` evaluates the optics core on Dr.Jit's LLVM backend
+#: even when Dr.Jit is not loaded yet
+LLVM_MIN_NODES = 40000
 
 
 def _llvm_available() -> bool:
@@ -223,7 +258,8 @@ def film_table(model: FilmCamera, thickness_range_nm, zenith_max_deg: float = 89
     optics core to about 10⁻⁵ of the reflectance (errors scale as the step to the fourth).
 
     ``backend``: how the optics core is evaluated on the grid, ``"numpy"``, ``"llvm"``
-    (Dr.Jit, double precision) or ``"auto"`` (LLVM when Dr.Jit has it).
+    (Dr.Jit, double precision) or ``"auto"``: LLVM when Dr.Jit has it and either Dr.Jit is
+    already loaded or the grid has more than :data:`LLVM_MIN_NODES` nodes.
 
     The ``cos θ`` nodes are placed half a step either side of normal incidence (never on
     it), since ``Q = P / sin² θ`` is computed from the optics core's ``P`` at each node; the
@@ -238,19 +274,19 @@ def film_table(model: FilmCamera, thickness_range_nm, zenith_max_deg: float = 89
     h_d = (hi - lo) / (n_d - 1) if hi > lo else h_d
     # dΔ/dcos θ = (4π d / λ) cos θ / q2 with q2 = sqrt(n2² - sin² θ) > cos θ: at most 4π d / λ.
     kc = 4.0 * np.pi * max(abs(hi), abs(lo), 1.0) / lam_min
-    h_c = min(phase_step_rad / kc, 0.02)
+    h_c = min(phase_step_rad / kc, 0.01)
     c_min = float(np.cos(np.radians(zenith_max_deg)))
     # nodes 1 + h/2 - k h, down to below c_min
     n_c = max(4, int(np.ceil((1.0 + 0.5 * h_c - c_min) / h_c)) + 2)
     c_nodes = 1.0 + 0.5 * h_c - h_c * np.arange(n_c)[::-1]
     d_nodes = lo + h_d * np.arange(n_d)
     if backend == "auto":
-        backend = "llvm" if _llvm_available() else "numpy"
+        # Dr.Jit's import and LLVM start-up (~0.3 s) pay off on large grids, or at once when
+        # the process already has Dr.Jit loaded (e.g. next to Mitsuba).
+        loaded = "drjit" in sys.modules
+        backend = "llvm" if (loaded or n_c * n_d > LLVM_MIN_NODES) and _llvm_available() else "numpy"
     S0, P = model.rgb_s0_p(c_nodes[:, None], d_nodes[None, :], chunk=16384, backend=backend)   # (Nc, Nd, 3)
     u = 1.0 - c_nodes ** 2
     data = np.concatenate([S0, P / u[:, None, None]], axis=-1)     # (Nc, Nd, 6)
-    Lc = _not_a_knot_operator(n_c)
-    Ld = _not_a_knot_operator(n_d)
-    coef = np.tensordot(Lc, data, axes=(1, 0))                      # along cos θ
-    coef = np.ascontiguousarray(np.tensordot(Ld, coef, axes=(1, 1)).transpose(1, 0, 2))   # along d
-    return FilmTable(float(c_nodes[0]), h_c, n_c, lo, h_d, n_d, coef, (c_min, 1.0), (lo, hi))
+    coef = _not_a_knot_coefficients(_not_a_knot_coefficients(data, 0), 1)
+    return FilmTable(float(c_nodes[0]), h_c, n_c, lo, h_d, n_d, np.ascontiguousarray(coef), (c_min, 1.0), (lo, hi))

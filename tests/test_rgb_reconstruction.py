@@ -14,7 +14,7 @@ from thinfilm.colorimetry import camera_weights
 from thinfilm.reconstruction import rgb
 from thinfilm.reconstruction.masks import mask_from_intensity, resolve_azimuth
 from thinfilm.reconstruction.rgb_invert import build_table, invert_pixels
-from thinfilm.reconstruction.rgb_model import FilmCamera
+from thinfilm.reconstruction.rgb_model import FilmCamera, film_table
 from thinfilm.reconstruction.surface import height_to_normals, integrate_normals
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -74,6 +74,55 @@ def test_per_pixel_inversion_with_three_uneven_angles_and_a_dispersive_film():
     fit = invert_pixels(model, I, angles, (250.0, 750.0))
     assert np.abs(fit.zenith_deg - zen).max() < 0.1
     assert np.abs(fit.thickness_nm - d).max() < 0.5
+
+
+# -- the model's spline table ---------------------------------------------------------------
+
+@pytest.mark.parametrize("n2, rng_nm", [(1.37, (100.0, 1000.0)), ("MgF2", (250.0, 1500.0)), (1.45, (0.0, 400.0))])
+def test_film_table_reproduces_the_optics_core(n2, rng_nm):
+    """Values and derivatives of the inversion's spline table against the optics core
+    (reflectances through the camera weights, written out here; derivatives by central
+    differences), over the whole domain: zenith 0–89.5°, the thickness range's ends, and
+    just off normal incidence, where the table's ``Q = P / sin² θ`` is a 0/0 limit.
+    Measured: values 8e-6, ∂/∂cos θ 7e-5, ∂/∂d 4e-6 per nm (reflectances are O(0.1–1))."""
+    from thinfilm.bsdf.materials import as_dispersion
+
+    table = film_table(FilmCamera(WL, n2, 1.6), rng_nm)
+    rng = np.random.default_rng(3)
+    zen = np.concatenate([rng.uniform(0, 89.5, 1500), [0.0, 0.05, 89.5, 89.5]])
+    d = np.concatenate([rng.uniform(*rng_nm, 1500), [rng_nm[0], rng_nm[1], rng_nm[0], rng_nm[1]]])
+    c = np.cos(np.radians(zen))
+    n2_wl, W = as_dispersion(n2)(WL), camera_weights(WL)
+
+    def optics_rgb(c, d):
+        Rs, Rp = optics.reflectances(c[:, None], WL, d[:, None], n2_wl, 1.6)
+        return (0.5 * (Rs + Rp)) @ W, (0.5 * (Rs - Rp)) @ W
+
+    S0, P = optics_rgb(c, d)
+    S0_t, Q_t, S0_c, Q_c, S0_d, Q_d = table.s0_q(c, d, derivatives=True)
+    u = 1.0 - c ** 2
+    off = u > 0
+    assert np.abs(S0_t - S0).max() < 2e-5
+    assert np.abs(Q_t[off] - P[off] / u[off, None]).max() < 2e-5
+    assert np.abs(Q_t[~off]).max() > 0.01          # a finite polarization limit at normal incidence
+    h, hd = 1e-5, 1e-3
+    (S0_p, P_p), (S0_m, P_m) = optics_rgb(c + h, d), optics_rgb(c - h, d)
+    assert np.abs(S0_c - (S0_p - S0_m) / (2 * h)).max() < 3e-4
+    P_c = Q_c * u[:, None] - 2.0 * c[:, None] * Q_t                 # ∂(Q u)/∂cos θ
+    assert np.abs(P_c - (P_p - P_m) / (2 * h)).max() < 3e-4
+    (S0_p, P_p), (S0_m, P_m) = optics_rgb(c, d + hd), optics_rgb(c, d - hd)
+    assert np.abs(S0_d - (S0_p - S0_m) / (2 * hd)).max() < 1e-5
+    assert np.abs(Q_d * u[:, None] - (P_p - P_m) / (2 * hd)).max() < 1e-5
+
+
+def test_film_table_built_on_llvm_equals_numpy():
+    """The optics core evaluated through Dr.Jit's LLVM backend (when this machine has it;
+    ``auto`` is NumPy otherwise) gives the same table as NumPy."""
+    model = FilmCamera(WL, "MgF2", 1.6)
+    a = film_table(model, (300.0, 600.0), backend="numpy")
+    b = film_table(model, (300.0, 600.0), backend="auto")
+    assert a.coef.shape == b.coef.shape
+    np.testing.assert_allclose(b.coef, a.coef, rtol=0, atol=1e-12)
 
 
 # -- the paper's DOP model -------------------------------------------------------------------
