@@ -27,7 +27,9 @@ method as published:
 
 * inverts the coherent thin-film model (:class:`~.rgb_model.FilmCamera`) per pixel, zenith,
   azimuth (mod 180°) and thickness jointly from all K × 3 polarizer × RGB values
-  (:mod:`.rgb_invert`: table search over (zenith, thickness) then Levenberg–Marquardt);
+  (:mod:`.rgb_invert`: a k-d tree search over (zenith, thickness) then Levenberg–Marquardt,
+  both on a bicubic spline of the model tabulated once from the optics core,
+  :class:`~.rgb_model.FilmTable`);
 * makes the normal field consistent with one surface: the 180° ambiguity is seeded at the
   occluding boundary as above, then the normals are integrated to a height map on the mask
   (confidence-weighted Poisson with a small curvature penalty, :mod:`.surface`), and every

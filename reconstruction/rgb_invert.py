@@ -15,7 +15,8 @@ core, which reproduces the optics core to a few parts in 10⁶):
    closed form) then rank them, and the best entries from distinct thickness basins are kept
    (colours repeat along thickness, Fig. 5 of the paper).
 2. **Refinement**: a vectorized Levenberg–Marquardt on the K × 3 intensity residuals of all
-   pixels at once, with the spline's exact derivatives, from each kept candidate; the lowest
+   pixels at once, with the spline's exact derivatives. A few steps from every candidate
+   that is not hopeless, then the ones still competitive run to convergence; the lowest
    final cost wins.
 
 Nothing here re-implements physics: every model value comes from the optics core, through
@@ -345,9 +346,11 @@ def invert_pixels(model: FilmCamera, I_obs, angles_deg, thickness_range_nm, tabl
     ----------
     I_obs : (N, K, 3) camera RGB behind each of the K polarizer angles.
     table : a :func:`build_table` for this model and thickness range (built when omitted).
-    n_candidates : thickness basins tried per pixel; a basin other than the coarse best is
-        refined only where its coarse cost is within ``competitive_ratio`` times the best one
-        (plus the median best cost, the noise floor).
+    n_candidates : thickness basins tried per pixel. Candidates whose coarse cost is within
+        ``screen_ratio`` times the pixel's best (plus the median best cost, the noise floor)
+        get ``screen_iterations`` LM steps; those then within ``competitive_ratio`` times the
+        pixel's best (plus the new floor) are refined to convergence.
+    neighbours, eps : of the k-d tree search (:func:`coarse_search`).
 
     Returns
     -------
