@@ -167,13 +167,15 @@ def coarse_search(table: InversionTable, S0, S1, S2, angles_deg, n_candidates: i
     k = min(neighbours, len(table.S0))
     _, idx = tree.query(np.nan_to_num(obs, nan=0.0, posinf=0.0, neginf=0.0), k=k, eps=eps, workers=-1)
     idx = np.minimum(np.asarray(idx).reshape(2, N, k).transpose(1, 0, 2).reshape(N, 2 * k), len(table.S0) - 1)
-    # Exact costs of those entries, with the best azimuth of each.
-    tS0, tP = table.S0[idx], table.P[idx]                                  # (N, 2k, 3)
-    Y1 = np.einsum("nc,nec->ne", S1, tP)
-    Y2 = np.einsum("nc,nec->ne", S2, tP)
+    # Exact costs of those entries, with the best azimuth of each: one batched product gives
+    # S0·S0_e, S1·P_e and S2·P_e for every entry e.
+    O = np.zeros((N, 6, 3))
+    O[:, :3, 0], O[:, 3:, 1], O[:, 3:, 2] = S0, S1, S2
+    Y = np.matmul(np.take(np.concatenate([table.S0, table.P], axis=1), idx, axis=0), O)   # (N, 2k, 3)
+    Y1, Y2 = Y[..., 1], Y[..., 2]
+    e_norm = w0 * np.sum(table.S0 ** 2, axis=1) + w1 * np.sum(table.P ** 2, axis=1)
     const = w0 * np.sum(S0 ** 2, axis=1) + w1 * np.sum(S1 ** 2 + S2 ** 2, axis=1)
-    cost = (w0 * np.sum(tS0 ** 2, axis=2) + w1 * np.sum(tP ** 2, axis=2)
-            - 2.0 * w0 * np.einsum("nc,nec->ne", S0, tS0) - 2.0 * w1 * np.hypot(Y1, Y2) + const[:, None])
+    cost = e_norm[idx] - 2.0 * w0 * Y[..., 0] - 2.0 * w1 * np.hypot(Y1, Y2) + const[:, None]
     cost = np.maximum(cost, 0.0)
     thick = table.thickness_nm[idx]
     rows = np.arange(N)
