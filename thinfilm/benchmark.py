@@ -43,7 +43,7 @@ PRESET_KINDS = {
     "cylinder": ("rgb", "spectral"),
     "pyramid": ("rgb",),
 }
-QUICK_RESOLUTION = 64
+QUICK_RESOLUTION = 128
 
 #: Figures the paper reports (``shared/PAPER.md``), keyed by (kind, preset). ``setting``
 #: says what the paper measured them on; ``None`` = not reported.
