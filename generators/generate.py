@@ -217,14 +217,6 @@ def write_dataset(sim: dict, spec: dict, folder) -> None:
     _preview(folder / "preview.png", sim)
 
 
-def _check_out(out: Path) -> None:
-    if out.exists() and not out.is_dir():
-        raise UserError(f"{out}: exists and is not a folder")
-    if out.is_dir() and any(out.iterdir()) and not (out / "meta.json").is_file():
-        raise UserError(f"{out}: folder exists, is not empty and is not a thinfilm dataset; "
-                        f"refusing to replace it")
-
-
 def generate_dataset(spec: dict, out_dir, progress: bool = True) -> Path:
     """Generate a dataset folder from a resolved spec (:func:`.spec.load_spec`).
 
@@ -237,15 +229,14 @@ def generate_dataset(spec: dict, out_dir, progress: bool = True) -> Path:
     Path
         ``out_dir``.
     """
-    from thinfilm.dataset import atomic_output_dir
+    from thinfilm.dataset import atomic_output_dir, check_output_dir
 
-    out = Path(out_dir)
-    _check_out(out)
+    out = check_output_dir(out_dir, markers=("meta.json",))  # before the work, not after
     timings = {}
     sim = simulate(spec, progress=progress)
     timings.update(sim["timings_s"])
     t = time.perf_counter()
-    with atomic_output_dir(out) as tmp:
+    with atomic_output_dir(out, markers=("meta.json",)) as tmp:
         write_dataset(sim, spec, tmp)
     timings["write"] = time.perf_counter() - t
     generate_dataset.last_timings_s = timings
@@ -261,8 +252,9 @@ def cli_main(args) -> int:
 
     spec = load_spec(args.spec, overrides=list(args.overrides or ()), resolution=args.resolution,
                      seed=args.seed)
-    out = Path(args.out)
-    _check_out(out)
+    from thinfilm.dataset import check_output_dir
+
+    out = check_output_dir(args.out, markers=("meta.json",))
     set_variant()
     generate_dataset(spec, out, progress=sys.stderr.isatty())
     t = generate_dataset.last_timings_s
