@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
-from thinfilm.dataset import atomic_output_dir, read_exr, write_exr, write_json
+from thinfilm.dataset import atomic_output_dir, read_exr, read_json, write_exr, write_json
 from thinfilm.errors import UserError
 
 __all__ = ["ESTIMATE_CHANNELS", "normals_to_angles", "write_estimate", "read_estimate", "height_to_mesh"]
@@ -104,13 +103,7 @@ def read_estimate(path):
             shape = ch[name].shape
         elif ch[name].shape != shape:
             raise UserError(f"{exr}: channel '{name}' has shape {ch[name].shape}, expected {shape}")
-    js = root / "estimate.json"
-    if not js.is_file():
-        raise UserError(f"{js}: file not found")
-    try:
-        info = json.loads(js.read_text())
-    except json.JSONDecodeError as e:
-        raise UserError(f"{js}: not valid JSON ({e.msg})") from None
+    info = read_json(root / "estimate.json")
     valid = ch["valid"] > 0.5
     out = {
         "normal": np.stack([ch["normal.X"], ch["normal.Y"], ch["normal.Z"]], axis=-1),

@@ -31,6 +31,8 @@ __all__ = [
     "read_dataset",
     "atomic_output_dir",
     "check_output_dir",
+    "read_json",
+    "write_json",
     "pol_layer",
     "band_channel",
 ]
@@ -182,12 +184,7 @@ def read_dataset(path, need=("polarized_rgb",), optional=None) -> Dataset:
     if not root.is_dir():
         raise UserError(f"{root}: dataset folder not found")
     meta_path = root / "meta.json"
-    if not meta_path.is_file():
-        raise UserError(f"{meta_path}: file not found (not a thinfilm dataset folder)")
-    try:
-        meta = json.loads(meta_path.read_text())
-    except json.JSONDecodeError as e:
-        raise UserError(f"{meta_path}: not valid JSON ({e.msg} at line {e.lineno})") from None
+    meta = read_json(meta_path, missing="not a thinfilm dataset folder")
     _check_meta(meta, meta_path)
     if meta.get("format") != FORMAT:
         raise UserError(f"{meta_path}: unknown format {meta.get('format')!r}, expected '{FORMAT}'")
@@ -322,6 +319,20 @@ def atomic_output_dir(out, markers=OUTPUT_MARKERS):
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+
+
+def read_json(path, missing=None):
+    """Parse a JSON file; a missing or malformed file is a one-line :class:`UserError`
+    (``missing`` adds a hint to the not-found message)."""
+    path = Path(path)
+    if not path.is_file():
+        raise UserError(f"{path}: file not found" + (f" ({missing})" if missing else ""))
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError as e:
+        raise UserError(f"{path}: not valid JSON ({e.msg} at line {e.lineno})") from None
+    except UnicodeDecodeError:
+        raise UserError(f"{path}: not a text file") from None
 
 
 def write_json(path, data) -> None:
