@@ -427,7 +427,7 @@ def capture_from_dataset(dataset_path, film_ior=None, substrate_ior=None, thickn
     from thinfilm.colorimetry import DEFAULT_CAMERA, DEFAULT_ILLUMINANT
     from thinfilm.dataset import read_dataset
 
-    ds = read_dataset(dataset_path, need=("polarized_rgb",))
+    ds = read_dataset(dataset_path, need=("polarized_rgb",), optional=())
     meta_path = f"{ds.path / 'meta.json'}"
     exr_path = f"{ds.path / 'polarized_rgb.exr'}"
     if not ds.polarized_rgb:
@@ -443,6 +443,8 @@ def capture_from_dataset(dataset_path, film_ior=None, substrate_ior=None, thickn
     wl = ds.wavelengths_nm
     if wl.size < 2:
         wl = np.arange(400.0, 721.0, 4.0)
+        print(f"thinfilm: warning: {meta_path}: no 'wavelengths_nm', modelling the camera over "
+              f"400-720 nm in 4 nm steps", file=sys.stderr)
     meta = ds.meta
     if film_ior is None:
         if "film_ior" not in meta:
@@ -465,6 +467,9 @@ def capture_from_dataset(dataset_path, film_ior=None, substrate_ior=None, thickn
         if not np.all(np.isfinite(vals)) or np.any(vals <= 1.0):
             raise UserError(f"{where}: refractive index must be > 1, got {float(np.min(vals)):g}")
     substrate_k = float(meta.get("substrate_k", 0.0) or 0.0) if substrate_ior is None else 0.0
+    for key, default in (("camera", DEFAULT_CAMERA), ("illuminant", DEFAULT_ILLUMINANT)):
+        if key not in meta:  # a real capture's meta.json may lack them: say what is assumed
+            print(f"thinfilm: warning: {meta_path}: no '{key}', assuming {default!r}", file=sys.stderr)
     model = FilmCamera(wl, n2, n3, substrate_k, meta.get("camera", DEFAULT_CAMERA),
                        meta.get("illuminant", DEFAULT_ILLUMINANT))
 

@@ -771,7 +771,7 @@ def cli_main(args):
     t_all = time.perf_counter()
     _method_name(getattr(args, "method", None))  # an unknown method fails before any reading
     t0 = time.perf_counter()
-    ds = read_dataset(args.dataset, need=("spectral_s",))
+    ds = read_dataset(args.dataset, need=("spectral_s",), optional=())
     t_read = time.perf_counter() - t0
     meta_path = ds.path / "meta.json"
     _check_dielectric_substrate(ds.meta, meta_path)
