@@ -82,19 +82,11 @@ class _ImageSpaceMixin:
                 f"width={1.0 / self.m_inv_w}, height={1.0 / self.m_inv_h}]")
 
 
-_CLASSES: dict = {}
-
-
 def texture_class():
     """The plugin class for the current Mitsuba variant."""
-    variant = mi.variant()
-    if variant is None:
-        raise RuntimeError("imagespace: call mitsuba.set_variant(...) first")
-    if variant not in _CLASSES:
-        namespace = {k: v for k, v in vars(_ImageSpaceMixin).items()
-                     if k not in ("__dict__", "__weakref__")}
-        _CLASSES[variant] = type("ImageSpaceTexture", (mi.Texture,), namespace)
-    return _CLASSES[variant]
+    from thinfilm.bsdf.plugin import variant_class
+
+    return variant_class(_ImageSpaceMixin, "Texture", "ImageSpaceTexture")
 
 
 def register() -> None:

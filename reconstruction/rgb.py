@@ -403,6 +403,16 @@ def _progress_bar(enabled, total, desc):
     return tqdm(total=total, desc=desc, file=sys.stderr, leave=False)
 
 
+def _given_or_meta_index(given, meta, key, option, meta_path):
+    """(dispersion, where) for an index from the command line, else from ``meta.json``."""
+    if given is not None:
+        return _index_from(given, option), option
+    if key not in meta:
+        raise UserError(f"{meta_path}: no '{key}'; pass the index with {option}")
+    where = f"{meta_path}: {key}"
+    return _index_from(meta[key], where), where
+
+
 def _index_from(value, where):
     """A dispersion model from a CLI number or a meta.json value; UserError when not > 1."""
     from thinfilm.bsdf.materials import as_dispersion
@@ -446,22 +456,8 @@ def capture_from_dataset(dataset_path, film_ior=None, substrate_ior=None, thickn
         print(f"thinfilm: warning: {meta_path}: no 'wavelengths_nm', modelling the camera over "
               f"400-720 nm in 4 nm steps", file=sys.stderr)
     meta = ds.meta
-    if film_ior is None:
-        if "film_ior" not in meta:
-            raise UserError(f"{meta_path}: no 'film_ior'; pass the film index with --film-ior")
-        n2 = _index_from(meta["film_ior"], f"{meta_path}: film_ior")
-        n2_where = f"{meta_path}: film_ior"
-    else:
-        n2 = _index_from(film_ior, "--film-ior")
-        n2_where = "--film-ior"
-    if substrate_ior is None:
-        if "substrate_ior" not in meta:
-            raise UserError(f"{meta_path}: no 'substrate_ior'; pass the substrate index with --substrate-ior")
-        n3 = _index_from(meta["substrate_ior"], f"{meta_path}: substrate_ior")
-        n3_where = f"{meta_path}: substrate_ior"
-    else:
-        n3 = _index_from(substrate_ior, "--substrate-ior")
-        n3_where = "--substrate-ior"
+    n2, n2_where = _given_or_meta_index(film_ior, meta, "film_ior", "--film-ior", meta_path)
+    n3, n3_where = _given_or_meta_index(substrate_ior, meta, "substrate_ior", "--substrate-ior", meta_path)
     for disp, where in ((n2, n2_where), (n3, n3_where)):
         vals = np.asarray(disp(wl), dtype=np.float64)
         if not np.all(np.isfinite(vals)) or np.any(vals <= 1.0):

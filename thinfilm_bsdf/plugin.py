@@ -70,7 +70,7 @@ import mitsuba as mi
 from . import optics
 from .materials import Constant, as_dispersion
 
-__all__ = ["bsdf_class", "register"]
+__all__ = ["bsdf_class", "register", "variant_class"]
 
 
 def _fail(message: str):
@@ -289,17 +289,25 @@ class _ThinFilmMixin:
 _CLASSES: dict = {}
 
 
-def bsdf_class():
-    """The plugin class for the current Mitsuba variant."""
+def variant_class(mixin, base: str, name: str):
+    """A subclass of ``mi.<base>`` for the current Mitsuba variant, with ``mixin``'s methods.
+
+    ``mi.BSDF``, ``mi.Texture`` … are different classes in every variant, and nanobind
+    classes take one base, so Python plugins copy their methods into a per-variant subclass.
+    """
     variant = mi.variant()
     if variant is None:
-        raise RuntimeError("thinfilm: call mitsuba.set_variant(...) before using the plugin")
-    if variant not in _CLASSES:
-        # nanobind classes take one base: copy the mixin's methods into a subclass of mi.BSDF.
-        namespace = {k: v for k, v in vars(_ThinFilmMixin).items()
-                     if k not in ("__dict__", "__weakref__")}
-        _CLASSES[variant] = type("ThinFilmBSDF", (mi.BSDF,), namespace)
-    return _CLASSES[variant]
+        raise RuntimeError(f"{name}: call mitsuba.set_variant(...) before using the plugin")
+    key = (name, variant)
+    if key not in _CLASSES:
+        namespace = {k: v for k, v in vars(mixin).items() if k not in ("__dict__", "__weakref__")}
+        _CLASSES[key] = type(name, (getattr(mi, base),), namespace)
+    return _CLASSES[key]
+
+
+def bsdf_class():
+    """The plugin class for the current Mitsuba variant."""
+    return variant_class(_ThinFilmMixin, "BSDF", "ThinFilmBSDF")
 
 
 def register() -> None:
