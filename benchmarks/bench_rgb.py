@@ -27,7 +27,7 @@ TARGETS = {"coverage": 0.90, "normal_mean_deg": 3.0, "normal_p95_deg": 8.0, "thi
 
 
 def score(dataset, result):
-    from thinfilm.dataset import read_dataset
+    from thinfilm.core.io import read_dataset
 
     gt = read_dataset(dataset, need=("ground_truth",)).ground_truth
     m = gt["mask"]

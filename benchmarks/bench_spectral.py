@@ -48,7 +48,7 @@ def main(argv=None):
     ap.add_argument("--preset", default="hemisphere")
     args = ap.parse_args(argv)
 
-    from thinfilm.dataset import read_dataset
+    from thinfilm.core.io import read_dataset
     from thinfilm.reconstruction import spectral as sp
     from thinfilm.reconstruction import spectral_model as sm
     from thinfilm.reconstruction.peaks import find_peaks

@@ -1,5 +1,4 @@
-"""Band-integrated Stokes cubes rendered through the ``thinfilm`` plugin, and the captures
-(polarization RGB camera, s-polarized hyperspectral camera) computed from them.
+"""Band-integrated Stokes cubes rendered through the ``thinfilm`` plugin.
 
 Rendering runs in Mitsuba's ``llvm_ad_mono_polarized`` variant (the caller sets it): the
 ``stokes`` integrator with one non-jittered sample per pixel, so every pixel is the exact
@@ -40,8 +39,6 @@ __all__ = [
     "passband_quadrature",
     "require_render_variant",
     "render_stokes_cube",
-    "spectral_s_from_stokes",
-    "captures_from_stokes",
     "GAUSSIAN_TRUNCATION_SIGMA",
     "BOX_SUBSTEP_NM",
 ]
@@ -163,7 +160,7 @@ def render_stokes_cube(scene, wavelengths_nm, band_fwhm_nm: float, passband: str
         Stokes frame of ``DESIGN.md`` (S1 = I(0°) - I(90°), 0° = image +x); ``mask``: (H, W)
         bool, pixels whose centre ray hits a surface facing the camera.
     """
-    from .scene import cast_ground_truth
+    from .ground_truth import cast_ground_truth
 
     mi = require_render_variant()
     if isinstance(scene, dict):
@@ -205,41 +202,3 @@ def _set_wavelength(params, keys, lam: float) -> None:
     for key in keys:
         params[key] = lam
     params.update()
-
-
-def spectral_s_from_stokes(stokes: dict) -> np.ndarray:
-    """s-polarized reflectance as a rotating-polarizer hyperspectral camera measures it:
-    S0 + sqrt(S1² + S2²) (the maximum over polarizer angles, doubled)."""
-    return stokes["S0"] + np.hypot(stokes["S1"], stokes["S2"])
-
-
-def captures_from_stokes(stokes: dict, wavelengths_nm, rig: dict):
-    """Noise-free captures of both cameras from a Stokes cube.
-
-    Parameters
-    ----------
-    stokes : dict
-        ``S0``, ``S1``, ``S2``: (H, W, B) in reflectance units.
-    wavelengths_nm : array (B,)
-    rig : dict
-        ``polarizer_angles_deg``, ``camera``, ``illuminant`` (a resolved spec's ``rig`` or a
-        dataset's ``meta``).
-
-    Returns
-    -------
-    polarized_rgb : dict
-        angle (int degrees) → (H, W, 3) linear white-balanced camera RGB of I(α) (Malus'
-        law, :func:`thinfilm.reconstruction.polarization.malus_intensity`), through
-        :func:`thinfilm.colorimetry.camera_weights`.
-    spectral_s : ndarray (H, W, B)
-    """
-    from thinfilm.colorimetry import camera_weights
-    from thinfilm.reconstruction.polarization import malus_intensity
-
-    wl = np.asarray(wavelengths_nm, dtype=np.float64)
-    w = camera_weights(wl, rig["camera"], rig["illuminant"])
-    rgb_stokes = [stokes[k] @ w for k in ("S0", "S1", "S2")]  # linear: RGB of each component
-    angles = list(rig["polarizer_angles_deg"])
-    images = malus_intensity(*rgb_stokes, angles)
-    polarized = {int(round(a)) % 360: img for a, img in zip(angles, images)}
-    return polarized, spectral_s_from_stokes(stokes)

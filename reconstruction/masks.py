@@ -6,13 +6,11 @@ Everything here uses only the captured data (no ground truth), so it works on re
 
 from __future__ import annotations
 
-from pathlib import Path
 
 import numpy as np
 
-from thinfilm.errors import UserError
 
-__all__ = ["mask_from_intensity", "read_mask_file", "outward_directions", "resolve_azimuth"]
+__all__ = ["mask_from_intensity", "outward_directions", "resolve_azimuth"]
 
 
 def mask_from_intensity(intensity, min_pixels: int = 16):
@@ -64,37 +62,6 @@ def _otsu(values, bins: int = 256):
     mu1 = (m0[-1] - m0) / np.maximum(w1, 1)
     between = w0 * w1 * (mu0 - mu1) ** 2
     return centers[int(np.argmax(between))]
-
-
-def read_mask_file(path, shape):
-    """Read a mask image (EXR, PNG, or ``.npy``; non-zero on the object) of the given shape."""
-    p = Path(path)
-    if not p.is_file():
-        raise UserError(f"{p}: mask file not found")
-    suffix = p.suffix.lower()
-    try:
-        if suffix == ".exr":
-            from thinfilm.dataset import read_exr
-
-            ch = read_exr(p)
-            name = "mask" if "mask" in ch else sorted(ch)[0]
-            m = ch[name]
-        elif suffix == ".npy":
-            m = np.load(p)
-        else:
-            import matplotlib.image as mpimg
-
-            m = mpimg.imread(str(p))
-    except UserError:
-        raise
-    except Exception as e:
-        raise UserError(f"{p}: cannot read the mask image ({e})") from None
-    m = np.asarray(m, dtype=np.float64)
-    if m.ndim == 3:
-        m = m[..., :3].max(axis=-1) if m.shape[-1] >= 3 else m[..., 0]
-    if m.shape != tuple(shape):
-        raise UserError(f"{p}: mask has shape {m.shape}, expected the captures' {tuple(shape)}")
-    return m > 0
 
 
 def outward_directions(mask, smooth_px: float = 1.5):

@@ -24,8 +24,10 @@ Examples
 >>> wl = np.arange(400.0, 721.0, 4.0)
 >>> R_s, _ = reflectances(np.cos(np.radians(30.0)), wl, 400.0, 1.37, 1.6)
 >>> p = find_peaks(R_s[None], wl)
->>> int(p.count[0]), round(float(p.wavelength_nm[0]), 1)   # m = 2: 2 d sqrt(n2² - sin²θ) / 2
-(1, 516.0)
+>>> int(p.count[0]), round(float(p.wavelength_nm[0]), 1)
+(1, 510.2)
+>>> round(float(2 * 400.0 * np.sqrt(1.37 ** 2 - 0.5 ** 2) / 2), 1)  # Eq. 28, order m = 2
+510.2
 """
 
 from __future__ import annotations

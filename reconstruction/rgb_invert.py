@@ -29,11 +29,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .polarization import fit_stokes, stokes_design_matrix
+from thinfilm.core.conventions import fit_stokes, stokes_design_matrix
+
+from .lm import levenberg_marquardt
 from .rgb_model import FilmCamera, FilmTable, film_table
 
 __all__ = ["InversionTable", "PixelFit", "PixelPrior", "build_table", "coarse_search", "refine_pixels",
-           "invert_pixels", "model_intensities"]
+           "invert_pixels"]
 
 
 @dataclass
@@ -194,16 +196,6 @@ def coarse_search(table: InversionTable, S0, S1, S2, angles_deg, n_candidates: i
     return tuple(out)
 
 
-def model_intensities(table: InversionTable, u, d, phi_rad, angles_rad):
-    """Model RGB behind each polarizer: (N, K, 3), with ``P`` (N, 3) and ``S0`` (N, 3)."""
-    u = np.clip(u, 0.0, 1.0)
-    S0, Q = table.film.s0_q(np.sqrt(1.0 - u), d)
-    P = Q * u[:, None]
-    c = np.cos(2.0 * (phi_rad[:, None] - angles_rad[None, :]))  # (N, K)
-    I = 0.5 * (S0[:, None, :] - P[:, None, :] * c[:, :, None])
-    return I, S0, P
-
-
 def _v_to_u_phi(x):
     """(v1, v2) = u (cos 2φ, sin 2φ) → (u, φ)."""
     return np.hypot(x[:, 0], x[:, 1]), 0.5 * np.arctan2(x[:, 1], x[:, 0])
@@ -239,7 +231,6 @@ def refine_pixels(table: InversionTable, I_obs, angles_deg, zenith_deg, thicknes
     """
     film = table.film
     I_obs = np.asarray(I_obs, dtype=np.float64)
-    N = I_obs.shape[0]
     ang = np.radians(np.asarray(angles_deg, dtype=np.float64))
     lo, hi = film.thickness_range_nm
     u_max = min(np.sin(np.radians(zenith_max_deg)) ** 2, 1.0 - film.cos_range[0] ** 2)
@@ -298,44 +289,19 @@ def refine_pixels(table: InversionTable, I_obs, angles_deg, zenith_deg, thicknes
             J = np.concatenate([J, Jp], axis=1)
         return r, J
 
-    all_idx = np.arange(N)
-    r, J = evaluate(x, all_idx)
-    cost = np.sum(r ** 2, axis=1)
-    lam = np.full(N, 1e-3)
-    active = np.ones(N, dtype=bool)
-    JtJ = np.matmul(J.transpose(0, 2, 1), J)
-    eye = np.eye(3)[None]
-    for it in range(iterations):
-        idx = np.nonzero(active)[0]
-        if idx.size == 0:
-            break
-        Ji = J[idx]
-        g = np.matmul(Ji.transpose(0, 2, 1), r[idx][:, :, None])[:, :, 0]
-        H = JtJ[idx]
-        diag = np.einsum("nii->ni", H)
-        scale = np.maximum(diag, 1e-9 * (diag.max(axis=1, keepdims=True) + 1e-30))
-        A = H + (lam[idx][:, None] * scale)[:, :, None] * eye
-        step = -np.linalg.solve(A, g[:, :, None])[:, :, 0]
-        xn = project(x[idx] + step)
-        rn, Jn = evaluate(xn, idx)
-        cn = np.sum(rn ** 2, axis=1)
-        better = cn < cost[idx]
-        ib = idx[better]
-        rel = (cost[idx] - cn)[better] / np.maximum(cost[ib], 1e-300)
-        x[ib], r[ib], J[ib], cost[ib] = xn[better], rn[better], Jn[better], cn[better]
-        Jb = Jn[better]
-        JtJ[ib] = np.matmul(Jb.transpose(0, 2, 1), Jb)
-        lam[ib] = np.maximum(lam[ib] * 0.3, 1e-9)
-        lam[idx[~better]] *= 10.0
-        done = np.zeros(N, dtype=bool)
-        small = (np.abs(step[better, :2]).max(axis=1) < step_tol_u) & (np.abs(step[better, 2]) < step_tol_nm)
-        done[ib] = (rel < 1e-12) | small
-        done[idx[~better]] = lam[idx[~better]] > 1e8
-        active &= ~done
+    def normal_equations(x, idx):
+        r, J = evaluate(x, idx)
+        H = np.matmul(J.transpose(0, 2, 1), J)
+        g = np.matmul(J.transpose(0, 2, 1), r[:, :, None])[:, :, 0]
+        return H, g, np.sum(r ** 2, axis=1), np.sum(r[:, :n_data] ** 2, axis=1)
+
+    fit = levenberg_marquardt(x, normal_equations, iterations, project=project,
+                              step_tol=np.array([step_tol_u, step_tol_u, step_tol_nm]), rel_tol=1e-12,
+                              lam0=1e-3, lam_down=0.3, lam_up=10.0, lam_min=1e-9, floor_rel=1e-9)
+    x = fit.x
     u, phi = _v_to_u_phi(x)
     zen = np.degrees(np.arcsin(np.sqrt(np.clip(u, 0.0, 1.0))))
-    data_cost = np.sum(r[:, :n_data] ** 2, axis=1)
-    return PixelFit(zen, np.mod(np.degrees(phi), 180.0), x[:, 2], cost, JtJ, data_cost)
+    return PixelFit(zen, np.mod(np.degrees(phi), 180.0), x[:, 2], fit.cost, fit.H, fit.aux)
 
 
 def invert_pixels(model: FilmCamera, I_obs, angles_deg, thickness_range_nm, table: InversionTable | None = None,

@@ -2,14 +2,11 @@
 
 A pixel whose surface normal has zenith θ and azimuth φ (camera frame of ``DESIGN.md``)
 reflects the uniform, unpolarized dome towards the orthographic camera at incidence θ.
-Per band the reflected Stokes vector is, in the image frame,
-
-    S0 = (R_s + R_p) / 2,   S1 = -P cos 2φ,   S2 = -P sin 2φ,   P = (R_s - R_p) / 2,
-
-because the s-direction (perpendicular to the plane of incidence) lies at φ + 90° in the
-image. ``R_s``, ``R_p`` come from :mod:`thinfilm.bsdf.optics` (the coherent Airy model, the
+Per band the reflected Stokes vector is the specular one of
+:func:`thinfilm.core.conventions.specular_stokes`: ``(S0, -P cos 2φ, -P sin 2φ)`` with
+``S0 = (R_s + R_p)/2`` and ``P = (R_s - R_p)/2``. ``R_s``, ``R_p`` come from :mod:`thinfilm.bsdf.optics` (the coherent Airy model, the
 project's one copy of the physics) and the camera response from
-:func:`thinfilm.colorimetry.camera_weights` (the same white-balanced weights the capture
+:func:`thinfilm.core.colorimetry.camera_weights` (the same white-balanced weights the capture
 generator uses). Behind a polarizer at α the camera sees
 ``½ (S0 + S1 cos 2α + S2 sin 2α)`` per RGB channel.
 
@@ -25,37 +22,37 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from thinfilm.bsdf import optics
-from thinfilm.bsdf.materials import as_dispersion
-from thinfilm.colorimetry import DEFAULT_CAMERA, DEFAULT_ILLUMINANT, camera_weights
+from thinfilm.core.colorimetry import DEFAULT_CAMERA, DEFAULT_ILLUMINANT, camera_weights
+from thinfilm.core.conventions import malus_intensity, specular_stokes
+from thinfilm.core.film import Film
 
 __all__ = ["FilmCamera", "FilmTable", "film_table"]
 
 
 @dataclass
 class FilmCamera:
-    """A film (index n2, possibly dispersive) on a substrate n3, seen by an RGB camera.
+    """A film (:class:`thinfilm.core.film.Film`, possibly dispersive) seen by an RGB camera.
 
     Parameters
     ----------
     wavelengths_nm : (B,) band centres.
-    film_ior : number, material name or dispersion model (:func:`~thinfilm.bsdf.materials.as_dispersion`).
-    substrate_ior : number (real index n3; ``substrate_k`` for absorbing substrates).
-    camera, illuminant : names or CSV paths, as in :mod:`thinfilm.colorimetry`.
+    film : :class:`~thinfilm.core.film.Film` (a single film; its thickness is the unknown).
+    camera, illuminant : names or CSV paths, as in :mod:`thinfilm.core.colorimetry`.
     """
 
     wavelengths_nm: np.ndarray
-    film_ior: object = 1.37
-    substrate_ior: object = 1.6
-    substrate_k: float = 0.0
+    film: Film
     camera: str = DEFAULT_CAMERA
     illuminant: str = DEFAULT_ILLUMINANT
     weights: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self):
+        if not self.film.is_single:
+            raise ValueError("the RGB forward model handles a single film")
         self.wavelengths_nm = np.asarray(self.wavelengths_nm, dtype=np.float64)
         self.weights = camera_weights(self.wavelengths_nm, self.camera, self.illuminant)  # (B, 3)
-        self._n2 = np.asarray(as_dispersion(self.film_ior)(self.wavelengths_nm), dtype=np.float64)
-        self._n3 = np.asarray(as_dispersion(self.substrate_ior)(self.wavelengths_nm), dtype=np.float64)
+        self._n2, self._k2 = self.film.layers[0].n_k(self.wavelengths_nm)
+        self._n3, self._k3 = self.film.substrate_n_k(self.wavelengths_nm)
 
     # -- spectra ------------------------------------------------------------------------
     def spectra(self, cos_theta, thickness_nm, backend: str = "numpy"):
@@ -68,15 +65,23 @@ class FilmCamera:
         """
         c = np.asarray(cos_theta, dtype=np.float64)[..., None]
         d = np.asarray(thickness_nm, dtype=np.float64)[..., None]
+        # Non-absorbing media pass k = 0 as a number (the optics core then skips it).
+        k2 = self._k2 if np.any(self._k2) else 0.0
+        k3 = self._k3 if np.any(self._k3) else 0.0
         if backend == "llvm":
             from drjit.llvm import Float64
 
-            c, d, lam, n2, n3 = np.broadcast_arrays(c, d, self.wavelengths_nm, self._n2, self._n3)
-            Rs, Rp = optics.reflectances(*(Float64(np.ascontiguousarray(a).ravel()) for a in (c, lam, d, n2, n3)),
-                                         self.substrate_k)
-            Rs, Rp = np.asarray(Rs).reshape(c.shape), np.asarray(Rp).reshape(c.shape)
+            arrays = np.broadcast_arrays(c, self.wavelengths_nm, d, self._n2, self._n3, k3, k2)
+            jit = [Float64(np.ascontiguousarray(a).ravel()) for a in arrays]
+            if np.isscalar(k3):
+                jit[5] = 0.0
+            if np.isscalar(k2):
+                jit[6] = 0.0
+            Rs, Rp = optics.reflectances(*jit[:6], float(self.film.ext_ior), jit[6])
+            Rs, Rp = np.asarray(Rs).reshape(arrays[0].shape), np.asarray(Rp).reshape(arrays[0].shape)
         elif backend == "numpy":
-            Rs, Rp = optics.reflectances(c, self.wavelengths_nm, d, self._n2, self._n3, self.substrate_k)
+            Rs, Rp = optics.reflectances(c, self.wavelengths_nm, d, self._n2, self._n3, k3,
+                                         self.film.ext_ior, k2)
         else:
             raise ValueError(f"backend: expected 'numpy' or 'llvm', got {backend!r}")
         return 0.5 * (Rs + Rp), 0.5 * (Rs - Rp)
@@ -97,19 +102,15 @@ class FilmCamera:
         return S0.reshape(shape + (3,)), P.reshape(shape + (3,))
 
     def rgb_stokes(self, zenith_deg, azimuth_deg, thickness_nm):
-        """Camera-RGB Stokes ``(S0, S1, S2)`` in the image frame, each ``shape + (3,)``."""
+        """Camera-RGB Stokes ``(S0, S1, S2)`` in the image frame, each ``shape + (3,)``
+        (:func:`thinfilm.core.conventions.specular_stokes` of the camera RGB of R_s and R_p)."""
         S0, P = self.rgb_s0_p(np.cos(np.radians(zenith_deg)), thickness_nm)
-        phi2 = 2.0 * np.radians(np.asarray(azimuth_deg, dtype=np.float64))[..., None]
-        return S0, -P * np.cos(phi2), -P * np.sin(phi2)
+        return specular_stokes(S0 + P, S0 - P, azimuth_deg)
 
     def polarized_rgb(self, zenith_deg, azimuth_deg, thickness_nm, angles_deg):
         """Noise-free camera RGB behind the polarizer at each angle: ``{angle: shape + (3,)}``."""
-        S0, S1, S2 = self.rgb_stokes(zenith_deg, azimuth_deg, thickness_nm)
-        out = {}
-        for a in angles_deg:
-            t = np.radians(a)
-            out[a] = 0.5 * (S0 + S1 * np.cos(2 * t) + S2 * np.sin(2 * t))
-        return out
+        images = malus_intensity(*self.rgb_stokes(zenith_deg, azimuth_deg, thickness_nm), angles_deg)
+        return dict(zip(angles_deg, images))
 
 
 # ------------------------------------------------------------------------------------------

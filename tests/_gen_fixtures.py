@@ -6,9 +6,6 @@ import math
 
 import numpy as np
 
-VARIANT = "llvm_ad_mono_polarized"
-
-
 def small_spec(preset, resolution=32, noise="none", seed=0, extra=()):
     from thinfilm.generators.spec import load_spec
 
@@ -16,7 +13,7 @@ def small_spec(preset, resolution=32, noise="none", seed=0, extra=()):
 
 
 def make_dataset(tmp_path_factory, name, spec):
-    from thinfilm.dataset import read_dataset
+    from thinfilm.core.io import read_dataset
     from thinfilm.generators.generate import generate_dataset
 
     out = tmp_path_factory.mktemp("gen") / name

@@ -12,8 +12,10 @@ from pathlib import Path
 import numpy as np
 
 from thinfilm.bsdf import optics
-from thinfilm.colorimetry import spectra_to_camera_rgb
-from thinfilm.dataset import FORMAT, band_channel, pol_layer, write_exr, write_json
+from thinfilm.core.colorimetry import spectra_to_camera_rgb
+from thinfilm.core.conventions import malus_intensity
+from thinfilm.core.film import Film
+from thinfilm.core.io import dataset_meta, write_dataset
 
 __all__ = ["hemisphere_normals", "analytic_stokes", "write_synthetic_dataset"]
 
@@ -60,28 +62,19 @@ def write_synthetic_dataset(root, size=24, wavelengths_nm=None, film_ior=1.37, s
     zenith = np.degrees(np.arccos(n[..., 2]))
     azimuth = np.degrees(np.arctan2(n[..., 1], n[..., 0])) % 360.0
     angles = [0, 45, 90, 135]
-    write_json(root / "meta.json", {
-        "format": FORMAT, "wavelengths_nm": wl.tolist(), "band_fwhm_nm": 0.0, "passband": "gaussian",
-        "polarizer_angles_deg": angles, "camera": camera, "illuminant": illuminant,
-        "film_ior": film_ior, "substrate_ior": substrate_ior, "projection": "orthographic",
-        "seed": 0, "noise": {"model": "none"}, "versions": {}})
-    write_exr(root / "ground_truth.exr", {
-        "normal.X": n[..., 0], "normal.Y": n[..., 1], "normal.Z": n[..., 2], "zenith": zenith,
-        "azimuth": azimuth, "thickness": thickness_nm, "depth": n[..., 2],
-        "mask": mask.astype(np.float32)})
+    gt = {"normal": n, "zenith": zenith, "azimuth": azimuth, "thickness": thickness_nm, "depth": n[..., 2],
+          "mask": mask}
+    meta = dataset_meta(wavelengths_nm=wl.tolist(), band_fwhm_nm=0.0, passband="gaussian",
+                        polarizer_angles_deg=angles, camera=camera, illuminant=illuminant,
+                        **Film.single(film_ior, None, substrate_ior).to_meta(),
+                        seed=0, noise={"model": "none"})
+    polarized = None
     if "polarized_rgb" in parts:
-        ch = {}
-        for a in angles:
-            t = np.radians(a)
-            spec = 0.5 * (stokes["S0"] + stokes["S1"] * np.cos(2 * t) + stokes["S2"] * np.sin(2 * t))
-            rgb = spectra_to_camera_rgb(spec, wl, camera, illuminant)
-            for c, name in enumerate("RGB"):
-                ch[f"{pol_layer(a)}.{name}"] = rgb[..., c]
-        write_exr(root / "polarized_rgb.exr", ch)
+        images = malus_intensity(stokes["S0"], stokes["S1"], stokes["S2"], angles)
+        polarized = {a: spectra_to_camera_rgb(img, wl, camera, illuminant) for a, img in zip(angles, images)}
+    spectral = None
     if "spectral_s" in parts:
-        s = stokes["S0"] + np.sqrt(stokes["S1"] ** 2 + stokes["S2"] ** 2)
-        write_exr(root / "spectral_s.exr", {band_channel(b): s[..., b] for b in range(wl.size)})
-    if "stokes" in parts:
-        write_exr(root / "stokes_spectral.exr", {f"{k}.{band_channel(b)}": v[..., b]
-                                                 for k, v in stokes.items() for b in range(wl.size)})
+        spectral = stokes["S0"] + np.sqrt(stokes["S1"] ** 2 + stokes["S2"] ** 2)
+    write_dataset(root, meta, ground_truth=gt, polarized_rgb=polarized, spectral_s=spectral,
+                  stokes=stokes if "stokes" in parts else None, preview=False)
     return root, n, mask, thickness_nm, stokes

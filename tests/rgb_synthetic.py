@@ -13,7 +13,8 @@ import json
 
 import numpy as np
 
-from thinfilm.dataset import FORMAT, pol_layer, write_exr
+from thinfilm.core.film import Film
+from thinfilm.core.io import dataset_meta, write_dataset
 from thinfilm.reconstruction.rgb_model import FilmCamera
 
 __all__ = ["shape_field", "capture", "write_synthetic_dataset"]
@@ -88,23 +89,16 @@ def write_synthetic_dataset(path, kind, resolution, film_ior=1.37, substrate_ior
     path = Path(path)
     path.mkdir(parents=True, exist_ok=True)
     wl = np.arange(400.0, 721.0, 4.0) if wavelengths_nm is None else np.asarray(wavelengths_nm)
-    model = FilmCamera(wl, film_ior, substrate_ior)
+    film = Film.single(film_ior, None, substrate_ior)
+    model = FilmCamera(wl, film)
     normals, mask, thick = shape_field(kind, resolution, thickness)
     imgs = capture(model, normals, mask, thick, angles_deg, noise, seed)
-    ch = {}
-    for a, img in imgs.items():
-        for i, c in enumerate("RGB"):
-            ch[f"{pol_layer(a)}.{c}"] = img[..., i]
-    write_exr(path / "polarized_rgb.exr", ch)
     zen = np.degrees(np.arccos(normals[..., 2]))
     az = np.mod(np.degrees(np.arctan2(normals[..., 1], normals[..., 0])), 360)
-    write_exr(path / "ground_truth.exr", {
-        "normal.X": normals[..., 0], "normal.Y": normals[..., 1], "normal.Z": normals[..., 2],
-        "zenith": zen, "azimuth": az, "thickness": thick, "depth": np.zeros(mask.shape),
-        "mask": mask.astype(np.float32)})
-    meta = {"format": FORMAT, "wavelengths_nm": wl.tolist(), "band_fwhm_nm": 4.0,
-            "polarizer_angles_deg": list(angles_deg), "camera": "Nikon 5100 (NPL)", "illuminant": "D65",
-            "film_ior": film_ior, "substrate_ior": substrate_ior, "projection": "orthographic",
-            "seed": seed, "noise": {"model": "camera" if noise else "none"}, "versions": {}}
-    (path / "meta.json").write_text(json.dumps(meta, indent=2))
+    gt = {"normal": normals, "zenith": zen, "azimuth": az, "thickness": thick, "depth": np.zeros(mask.shape),
+          "mask": mask}
+    meta = dataset_meta(wavelengths_nm=wl.tolist(), band_fwhm_nm=4.0, polarizer_angles_deg=list(angles_deg),
+                        camera="Nikon 5100 (NPL)", illuminant="D65", **film.to_meta(),
+                        seed=seed, noise={"model": "camera" if noise else "none"})
+    write_dataset(path, meta, ground_truth=gt, polarized_rgb=imgs, preview=False)
     return normals, mask, thick

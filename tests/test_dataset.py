@@ -5,20 +5,18 @@ import json
 import numpy as np
 import pytest
 
-from thinfilm.dataset import (FORMAT, atomic_output_dir, band_channel, pol_layer, read_dataset,
-                              write_exr, write_json)
-from thinfilm.errors import UserError
-from thinfilm.reconstruction.estimate import normals_to_angles
+from thinfilm.core.conventions import normals_to_angles
+from thinfilm.core.errors import UserError
+from thinfilm.core.io import (FORMAT, Estimate, band_channel, dataset_meta, read_dataset, read_estimate,
+                              write_dataset, write_estimate, write_exr)
+from thinfilm.core.outputs import atomic_output_dir
 
 
 def _tiny_dataset(root, wavelengths=(500.0, 510.0, 520.0), angles=(0, 45, 90, 135)):
     root.mkdir(parents=True)
-    write_json(root / "meta.json", {"format": FORMAT, "wavelengths_nm": list(wavelengths),
-                                    "polarizer_angles_deg": list(angles)})
-    img = np.full((4, 5), 0.25, np.float32)
-    write_exr(root / "polarized_rgb.exr",
-              {f"{pol_layer(a)}.{c}": img for a in angles for c in "RGB"})
-    write_exr(root / "spectral_s.exr", {band_channel(i): img for i in range(len(wavelengths))})
+    img = np.full((4, 5, 3), 0.25, np.float32)
+    write_dataset(root, dataset_meta(wavelengths_nm=list(wavelengths), polarizer_angles_deg=list(angles)),
+                  polarized_rgb={a: img for a in angles}, spectral_s=np.full((4, 5, len(wavelengths)), 0.25))
     return root
 
 
@@ -109,3 +107,28 @@ def test_azimuth_stays_below_360_in_float32():
     zenith, azimuth = normals_to_angles(n)
     assert 0.0 <= np.float32(azimuth) < 360.0
     assert abs(zenith - np.degrees(np.arccos(n[2]))) < 1e-12
+
+
+def test_written_dataset_reads_back(tmp_path):
+    root = _tiny_dataset(tmp_path / "d")
+    assert (root / "preview.png").is_file()
+    ds = read_dataset(root, need=("polarized_rgb", "spectral_s"))
+    assert ds.meta["format"] == FORMAT and "versions" in ds.meta
+    np.testing.assert_array_equal(ds.polarized_rgb[45], np.full((4, 5, 3), 0.25, np.float32))
+
+
+def test_estimate_round_trip(tmp_path):
+    rng = np.random.default_rng(0)
+    n = rng.normal(size=(4, 5, 3))
+    n[..., 2] = np.abs(n[..., 2]) + 0.1
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    valid = rng.random((4, 5)) > 0.3
+    est = Estimate(n, rng.uniform(100, 900, (4, 5)), valid, "MgF2", 1.6, height=rng.random((4, 5)),
+                   info={"method": "m", "timings_s": {"total": 1.0}})
+    write_estimate(tmp_path, est)
+    back = read_estimate(tmp_path)
+    assert back.film_ior == "MgF2" and back.substrate_ior == 1.6 and back.info["method"] == "m"
+    np.testing.assert_array_equal(back.valid, valid)
+    np.testing.assert_allclose(back.normals[valid], n[valid], atol=1e-7)
+    assert np.isnan(back.thickness_nm[~valid]).all()
+    assert (tmp_path / "surface.ply").is_file()

@@ -16,8 +16,9 @@ import pytest
 from evaluation_synthetic import analytic_stokes, hemisphere_normals, write_synthetic_dataset
 from thinfilm import color_difference as cd
 from thinfilm import evaluation as ev
-from thinfilm.colorimetry import illuminant_spd, spectra_to_camera_rgb
-from thinfilm.dataset import read_exr, write_exr, write_json
+from thinfilm.core.film import Film
+from thinfilm.core.colorimetry import illuminant_spd, spectra_to_camera_rgb
+from thinfilm.core.io import read_exr, write_exr, write_json
 
 WL = np.arange(400.0, 721.0, 4.0)
 
@@ -129,10 +130,12 @@ def test_metrics_on_hand_made_estimate():
     gt = {"normal": np.tile([0.0, 0.0, 1.0], (2, 3, 1)), "zenith": np.zeros((2, 3)),
           "thickness": np.full((2, 3), 500.0), "mask": gt_mask}
     est_zen = np.array([[0.0, 10.0, 20.0], [30.0, 99.0, 50.0]])
-    est = {"normal": _tilted(est_zen), "thickness": 500.0 + np.array([[5.0, -5.0, 10.0], [0.0, 77.0, 20.0]]),
-           "valid": np.array([[True, True, True], [True, False, True]])}
+    from thinfilm.core.io import Estimate
+
+    est = Estimate(_tilted(est_zen), 500.0 + np.array([[5.0, -5.0, 10.0], [0.0, 77.0, 20.0]]),
+                   np.array([[True, True, True], [True, False, True]]))
     maps = ev.geometry_error_maps(gt, est)
-    mask = gt_mask & est["valid"]  # scored pixels: errors 0, 10, 20, 30 deg; 5, 5, 10, 0 nm
+    mask = gt_mask & est.valid  # scored pixels: errors 0, 10, 20, 30 deg; 5, 5, 10, 0 nm
     m = ev.metrics_from_maps(maps, mask, film_ior_error=0.03)
     # by hand: mean (0+10+20+30)/4 = 15, median 15, p95 = 20 + 0.85*10 = 28.5, max 30
     for key in ("normal_error_deg", "zenith_error_deg"):
@@ -156,8 +159,18 @@ def test_angular_error_small_angles_and_normalization():
 # -- re-rendering ------------------------------------------------------------------------------
 
 @pytest.fixture
-def mono_polarized(use_variant):
-    return use_variant(ev.RENDER_VARIANT)
+def mono_polarized(render_variant):
+    return render_variant
+
+
+def _estimate(path, normals, thickness, valid, info):
+    """Write an estimate folder through the real writer."""
+    from thinfilm.core.io import Estimate, write_estimate
+
+    info = dict(info)
+    path.mkdir(parents=True)
+    write_estimate(path, Estimate(normals, thickness, valid, info.pop("film_ior"), info.pop("substrate_ior"),
+                                  info=info))
 
 
 @pytest.mark.parametrize("h, w", [(6, 6), (5, 7), (7, 5)])  # square, wide and tall images
@@ -170,7 +183,7 @@ def test_rerender_matches_optics_with_spatially_varying_fields(mono_polarized, h
     valid = np.ones((h, w), bool)
     valid[2, 3] = False
     wl = np.array([420.0, 550.0, 690.0])
-    got = ev.render_normal_map(normals, thick, valid, wl, 1.37, 1.6, band_fwhm_nm=0.0)
+    got = ev.render_normal_map(normals, thick, valid, wl, Film.single(1.37, None, 1.6), band_fwhm_nm=0.0)
     ref = analytic_stokes(normals, valid, thick, wl, 1.37, 1.6)
     for s in ("S0", "S1", "S2"):
         np.testing.assert_allclose(got[s], ref[s], atol=2e-6, err_msg=s)
@@ -178,10 +191,8 @@ def test_rerender_matches_optics_with_spatially_varying_fields(mono_polarized, h
 
 
 def test_ground_truth_round_trip_on_analytic_captures(mono_polarized, tmp_path):
-    from thinfilm.reconstruction.estimate import write_estimate
-
     root, n, mask, thick, _ = write_synthetic_dataset(tmp_path / "ds", size=24)
-    write_estimate(tmp_path / "est", n, thick, mask,
+    _estimate(tmp_path / "est", n, thick, mask,
                    {"method": "ground_truth", "film_ior": 1.37, "substrate_ior": 1.6, "timings_s": {}})
     result = ev.evaluate(root, tmp_path / "est", tmp_path / "out")
     m = json.loads((tmp_path / "out" / "metrics.json").read_text())
@@ -201,10 +212,8 @@ def test_ground_truth_round_trip_on_analytic_captures(mono_polarized, tmp_path):
 
 
 def test_rgb_only_round_trip_and_appearance_error_of_wrong_thickness(mono_polarized, tmp_path):
-    from thinfilm.reconstruction.estimate import write_estimate
-
     root, n, mask, thick, _ = write_synthetic_dataset(tmp_path / "ds", size=16, parts=("polarized_rgb",))
-    write_estimate(tmp_path / "gt", n, thick, mask,
+    _estimate(tmp_path / "gt", n, thick, mask,
                    {"method": "ground_truth", "film_ior": 1.37, "substrate_ior": 1.6, "timings_s": {}})
     r = ev.evaluate(root, tmp_path / "gt")
     assert r["colour_kind"] == "camera_rgb"
@@ -213,7 +222,7 @@ def test_rgb_only_round_trip_and_appearance_error_of_wrong_thickness(mono_polari
 
     # 40 nm too thick, film index 1.40: the ΔE map must equal the ΔE between the analytic
     # appearances (camera RGB of the s-polarized spectra through the fitted matrix).
-    write_estimate(tmp_path / "off", n, thick + 40.0, mask,
+    _estimate(tmp_path / "off", n, thick + 40.0, mask,
                    {"method": "hand", "film_ior": 1.40, "substrate_ior": 1.6, "timings_s": {}})
     r = ev.evaluate(root, tmp_path / "off")
     wl = np.arange(400.0, 721.0, 16.0)
@@ -233,10 +242,8 @@ def test_rgb_only_round_trip_and_appearance_error_of_wrong_thickness(mono_polari
 
 
 def test_spectral_rmse_is_paper_eq32(mono_polarized, tmp_path):
-    from thinfilm.reconstruction.estimate import write_estimate
-
     root, n, mask, thick, stokes = write_synthetic_dataset(tmp_path / "ds", size=12, parts=("spectral_s",))
-    write_estimate(tmp_path / "off", n, thick - 25.0, mask,
+    _estimate(tmp_path / "off", n, thick - 25.0, mask,
                    {"method": "hand", "film_ior": 1.37, "substrate_ior": 1.6, "timings_s": {}})
     r = ev.evaluate(root, tmp_path / "off")
     wl = np.arange(400.0, 721.0, 16.0)
@@ -297,10 +304,8 @@ def test_cli_bad_estimate_one_line_exit_2(tmp_path, capsys, case):
 
 
 def test_cli_evaluate_writes_metrics(tmp_path, capsys):
-    from thinfilm.reconstruction.estimate import write_estimate
-
     root, n, mask, thick, _ = write_synthetic_dataset(tmp_path / "ds", size=12, parts=("spectral_s",))
-    write_estimate(tmp_path / "est", n, thick, mask, dict(INFO))
+    _estimate(tmp_path / "est", n, thick, mask, dict(INFO))
     code, cap = _run_cli(["evaluate", str(root), str(tmp_path / "est"), "--out", str(tmp_path / "out")], capsys)
     assert code == 0, cap.err
     m = json.loads((tmp_path / "out" / "metrics.json").read_text())
@@ -318,14 +323,13 @@ def test_ground_truth_round_trip_on_generated_preset(mono_polarized, tmp_path, p
     # reproduced by re-rendering the ground truth (mean ΔE*ab <= 0.1).
     from thinfilm.generators.generate import generate_dataset
     from thinfilm.generators.spec import load_spec
-    from thinfilm.reconstruction.estimate import write_estimate
-    from thinfilm.dataset import read_dataset
+    from thinfilm.core.io import read_dataset
 
     spec = load_spec(preset, overrides=["noise.model=none"], resolution=24)
     generate_dataset(spec, tmp_path / "ds", progress=False)
     ds = read_dataset(tmp_path / "ds", need=("ground_truth", "spectral_s"))
     gt = ds.ground_truth
-    write_estimate(tmp_path / "gt", gt["normal"], gt["thickness"], gt["mask"],
+    _estimate(tmp_path / "gt", gt["normal"], gt["thickness"], gt["mask"],
                    {"method": "ground_truth", "film_ior": ds.meta["film_ior"],
                     "substrate_ior": ds.meta["substrate_ior"], "timings_s": {}})
     m = ev.evaluate(tmp_path / "ds", tmp_path / "gt")["metrics"]
@@ -336,11 +340,9 @@ def test_ground_truth_round_trip_on_generated_preset(mono_polarized, tmp_path, p
 
 
 def test_dataset_without_ground_truth_scores_appearance_only(mono_polarized, tmp_path):
-    from thinfilm.reconstruction.estimate import write_estimate
-
     root, n, mask, thick, _ = write_synthetic_dataset(tmp_path / "ds", size=12, parts=("spectral_s",))
     (root / "ground_truth.exr").unlink()  # a capture of a real object: no truth
-    write_estimate(tmp_path / "est", n, thick, mask, dict(INFO))
+    _estimate(tmp_path / "est", n, thick, mask, dict(INFO))
     r = ev.evaluate(root, tmp_path / "est", tmp_path / "out")
     m = r["metrics"]
     assert m["normal_error_deg"]["mean"] is None and m["thickness_error_nm"]["mean"] is None

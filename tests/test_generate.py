@@ -8,24 +8,15 @@ import math
 import numpy as np
 import pytest
 
-from _gen_fixtures import (VARIANT, interior_pixels, make_dataset, pixel_centres, small_spec,
-                           tmm_band, tmm_rs_rp)
+from _gen_fixtures import interior_pixels, make_dataset, pixel_centres, small_spec, tmm_band, tmm_rs_rp
 
 pytestmark = pytest.mark.slow
 
 
-@pytest.fixture(scope="module")
-def mono_polarized():
-    import mitsuba as mi
-
-    mi.set_variant(VARIANT)
-    return mi
-
-
-@pytest.fixture(autouse=True)
-def _variant(mono_polarized):
-    # Other test modules may switch variants between tests.
-    mono_polarized.set_variant(VARIANT)
+@pytest.fixture(scope="module", autouse=True)
+def mono_polarized(render_variant_module):
+    """The generator's variant for every test of the module."""
+    return render_variant_module
 
 
 @pytest.fixture(scope="module")
@@ -93,16 +84,18 @@ def test_band_integrated_spectral_s_and_stokes_match_tmm(datasets, preset):
             assert ds.stokes["S2"][r, c, b] == pytest.approx(-lin * math.sin(2 * phi), abs=2e-5)
 
 
-def test_absorbing_substrate_warns_and_spectral_s_is_the_larger_of_rs_and_rp(tmp_path, mono_polarized, capsys):
+def test_absorbing_substrate_warns_and_spectral_s_is_the_larger_of_rs_and_rp(tmp_path):
     """On an absorbing substrate R_p exceeds R_s in places (the film's s fringes dip deeper), so
     the rotating-polarizer capture S0 + sqrt(S1² + S2²) = max(R_s, R_p) is no longer R_s: the
     generator says so on stderr, and the data are what it says (tmm, band-integrated)."""
-    from thinfilm.dataset import read_dataset
+    from thinfilm.core.io import read_dataset
     from thinfilm.generators.generate import generate_dataset
 
-    spec = small_spec("hemisphere", 24, extra=("substrate.k=2.0",))
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "warning" in err[0] and "max(R_s, R_p), not R_s" in err[0]
+    from thinfilm.core.errors import ThinfilmWarning
+
+    with pytest.warns(ThinfilmWarning, match=r"max\(R_s, R_p\), not R_s") as record:
+        spec = small_spec("hemisphere", 24, extra=("substrate.k=2.0",))
+    assert len(record) == 1
     generate_dataset(spec, tmp_path / "out", progress=False)
     ds = read_dataset(tmp_path / "out", need=("ground_truth", "spectral_s"))
     assert ds.meta["substrate_k"] == 2.0
@@ -202,8 +195,8 @@ def test_polarizer_images_form_one_stokes_state(datasets, preset):
 
 
 def test_white_balance_and_rgb_from_camera_weights(datasets):
-    """Polarized RGB equals thinfilm.colorimetry applied to I(alpha) spectra."""
-    from thinfilm.colorimetry import spectra_to_camera_rgb
+    """Polarized RGB equals thinfilm.core.colorimetry applied to I(alpha) spectra."""
+    from thinfilm.core.colorimetry import spectra_to_camera_rgb
 
     ds = datasets["cylinder"]
     s = ds.stokes
@@ -220,7 +213,7 @@ FILES = ("scene.toml", "meta.json", "ground_truth.exr", "polarized_rgb.exr", "sp
          "stokes_spectral.exr", "preview.png")
 
 
-def test_same_seed_same_bytes_other_seed_other_noise(tmp_path, mono_polarized):
+def test_same_seed_same_bytes_other_seed_other_noise(tmp_path):
     from thinfilm.generators.generate import generate_dataset
     from thinfilm.generators.spec import load_spec
 
@@ -242,8 +235,8 @@ def test_same_seed_same_bytes_other_seed_other_noise(tmp_path, mono_polarized):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a", "b", "c", "d"]  # no temp folders left
 
 
-def test_camera_noise_is_unbiased_and_scaled_by_exposure(tmp_path, mono_polarized):
-    from thinfilm.dataset import read_dataset
+def test_camera_noise_is_unbiased_and_scaled_by_exposure(tmp_path):
+    from thinfilm.core.io import read_dataset
     from thinfilm.generators.generate import generate_dataset
 
     exact = tmp_path / "exact"
@@ -264,10 +257,10 @@ def test_camera_noise_is_unbiased_and_scaled_by_exposure(tmp_path, mono_polarize
 
 # --- mesh specs ----------------------------------------------------------------------------
 
-def test_mesh_spec_renders_with_its_shading_normals(tmp_path, mono_polarized):
+def test_mesh_spec_renders_with_its_shading_normals(tmp_path):
     import trimesh
 
-    from thinfilm.dataset import read_dataset
+    from thinfilm.core.io import read_dataset
     from thinfilm.generators.generate import generate_dataset
     from thinfilm.generators.spec import load_spec
 
@@ -278,7 +271,7 @@ def test_mesh_spec_renders_with_its_shading_normals(tmp_path, mono_polarized):
         '[film]\nior = 1.38\n[film.thickness]\nprofile = "linear"\nstart = 300.0\nend = 500.0\naxis = "y"\n\n'
         '[substrate]\nior = 1.55\n\n[rig]\nresolution = 32\n\n[noise]\nmodel = "none"\n')
     spec = load_spec(spec_path)
-    assert spec["shape"]["path"] == str((tmp_path / "ball.ply").resolve())
+    assert spec.shape.params["path"] == str((tmp_path / "ball.ply").resolve())
     generate_dataset(spec, tmp_path / "out", progress=False)
     ds = read_dataset(tmp_path / "out", need=("ground_truth", "spectral_s"))
     gt = ds.ground_truth
@@ -305,7 +298,7 @@ def test_mesh_spec_renders_with_its_shading_normals(tmp_path, mono_polarized):
 
 # --- dome with a camera hole ---------------------------------------------------------------
 
-def test_dome_hole_darkens_only_reflections_towards_the_camera(tmp_path, mono_polarized):
+def test_dome_hole_darkens_only_reflections_towards_the_camera(tmp_path):
     from thinfilm.generators.render import render_stokes_cube
     from thinfilm.generators.scene import build_scene
 
@@ -335,8 +328,8 @@ def test_normal_map_scene_reproduces_the_dataset(datasets, preset):
 
     ds = datasets[preset]
     gt = ds.ground_truth
-    scene = normal_map_scene(gt["normal"], gt["thickness"], gt["mask"], ds.meta["film_ior"],
-                             ds.meta["substrate_ior"], rig=ds.meta)
+    scene = normal_map_scene(gt["normal"], gt["thickness"], gt["mask"], ds.film(),
+                             dome_hole_deg=ds.meta["dome_hole_deg"])
     out = render_stokes_cube(scene, ds.wavelengths_nm, ds.meta["band_fwhm_nm"], ds.meta["passband"])
     np.testing.assert_array_equal(out["mask"], gt["mask"])
     for s in ("S0", "S1", "S2"):
@@ -358,7 +351,7 @@ def test_dataset_meta_and_format(datasets):
     assert (ds.path / "preview.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-def test_flat_shaded_rotated_box_mesh_has_exact_face_normals(tmp_path, mono_polarized):
+def test_flat_shaded_rotated_box_mesh_has_exact_face_normals(tmp_path):
     """An .obj box, rotated (x, then y, then z) and flat shaded: every visible pixel's
     ground-truth normal is one of the rotated face normals, and the pixel renders."""
     import trimesh
@@ -390,8 +383,8 @@ def test_flat_shaded_rotated_box_mesh_has_exact_face_normals(tmp_path, mono_pola
     assert np.all(out["S0"][m] > 0)
 
 
-def test_bitmap_thickness_is_what_the_ground_truth_reads(tmp_path, mono_polarized):
-    from thinfilm.dataset import write_exr
+def test_bitmap_thickness_is_what_the_ground_truth_reads(tmp_path):
+    from thinfilm.core.io import write_exr
     from thinfilm.generators.scene import build_scene
     from thinfilm.generators.spec import load_spec
 

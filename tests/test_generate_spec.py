@@ -4,12 +4,13 @@
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 import pytest
 
 from thinfilm.cli import main
-from thinfilm.errors import UserError
+from thinfilm.core.errors import ThinfilmWarning, UserError
 from thinfilm.generators.spec import dump_toml, load_spec, wavelength_grid
 
 
@@ -19,13 +20,13 @@ from thinfilm.generators.spec import dump_toml, load_spec, wavelength_grid
 def test_presets_resolve_and_round_trip_through_toml(preset, tmp_path):
     spec = load_spec(preset)
     path = tmp_path / "s.toml"
-    path.write_text(dump_toml(spec))
+    path.write_text(spec.to_toml())
     assert load_spec(path) == spec
-    assert dump_toml(load_spec(path)) == dump_toml(spec)
+    assert load_spec(path).to_toml() == spec.to_toml() == dump_toml(spec.to_dict())
 
 
 def test_presets_hold_the_papers_objects():
-    h, c, p = load_spec("hemisphere"), load_spec("cylinder"), load_spec("pyramid")
+    h, c, p = (load_spec(name).to_dict() for name in ("hemisphere", "cylinder", "pyramid"))
     assert (h["film"]["ior"], h["substrate"]["ior"], h["film"]["thickness"]) == (
         1.37, 1.6, {"profile": "uniform", "value": 400.0})
     assert (c["film"]["ior"], c["substrate"]["ior"]) == (1.37, 1.6)
@@ -41,38 +42,53 @@ def test_presets_hold_the_papers_objects():
 
 def test_overrides_resolution_and_seed():
     spec = load_spec("hemisphere", overrides=["film.thickness.value=450", "rig.band_fwhm_nm=2",
-                                               "noise.model=none"], resolution=48, seed=5)
+                                               "noise.model=none"], resolution=48, seed=5).to_dict()
     assert spec["film"]["thickness"]["value"] == 450.0
     assert spec["rig"]["band_fwhm_nm"] == 2.0
     assert spec["rig"]["resolution"] == 48 and spec["seed"] == 5
     assert spec["noise"]["model"] == "none"
     # switching the kind drops the old kind's keys and fills the new defaults
-    cyl = load_spec("hemisphere", overrides=["shape.kind=cylinder", "shape.length=3"])
+    cyl = load_spec("hemisphere", overrides=["shape.kind=cylinder", "shape.length=3"]).to_dict()
     assert cyl["shape"] == {"kind": "cylinder", "radius": 1.0, "length": 3.0}
-    rad = load_spec("hemisphere", overrides=["film.thickness.profile=radial"])
+    rad = load_spec("hemisphere", overrides=["film.thickness.profile=radial"]).to_dict()
     assert rad["film"]["thickness"]["profile"] == "radial" and "value" not in rad["film"]["thickness"]
 
 
-def test_film_index_not_below_substrate_warns(capsys):
-    load_spec("hemisphere", overrides=["film.ior=1.7"])
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "warning" in err[0] and "1.7" in err[0]
-    load_spec("hemisphere")
-    assert capsys.readouterr().err == ""
+def test_film_index_not_below_substrate_warns():
+    with pytest.warns(ThinfilmWarning, match="film index 1.7 >= substrate index 1.6") as record:
+        load_spec("hemisphere", overrides=["film.ior=1.7"])
+    assert len(record) == 1
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        load_spec("hemisphere")
 
 
-def test_absorbing_substrate_warns_that_spectral_s_is_not_rs(capsys):
-    load_spec("hemisphere", overrides=["substrate.k=0.8"])
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith("thinfilm: warning: substrate k = 0.8 > 0")
-    assert "max(R_s, R_p), not R_s" in err[0]
-    load_spec("hemisphere", overrides=["substrate.k=0"])
-    assert capsys.readouterr().err == ""
+def test_absorbing_substrate_warns_that_spectral_s_is_not_rs():
+    with pytest.warns(ThinfilmWarning, match=r"^substrate k = 0.8 > 0") as record:
+        load_spec("hemisphere", overrides=["substrate.k=0.8"])
+    assert len(record) == 1 and "max(R_s, R_p), not R_s" in str(record[0].message)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        load_spec("hemisphere", overrides=["substrate.k=0"])
+
+
+def test_warnings_reach_the_command_line_as_one_line(tmp_path):
+    import subprocess
+    import sys
+
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    run = subprocess.run([sys.executable, "-m", "thinfilm.cli", "generate", "hemisphere", "--set",
+                          "substrate.k=0.8", "--out", str(blocker)], capture_output=True, text=True)
+    assert run.returncode == 2
+    err = run.stderr.strip().splitlines()
+    assert len(err) == 2 and err[0].startswith("thinfilm: warning: substrate k = 0.8 > 0")
+    assert err[1].startswith("thinfilm: error: --out") and "Traceback" not in run.stderr
 
 
 def test_dict_specs_and_named_materials():
     spec = load_spec({"film": {"ior": "MgF2"}, "shape": {"kind": "pyramid"}})
-    assert spec["film"]["ior"] == "MgF2" and spec["shape"]["base"] == 2.0
+    assert spec.film.layers[0].index.name == "MgF2" and spec.shape.params["base"] == 2.0
     with pytest.raises(UserError, match="film.ior"):
         load_spec({"film": {"ior": "unobtainium"}})
 

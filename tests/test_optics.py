@@ -68,11 +68,9 @@ def test_broadcasting_over_leading_shapes():
 
 
 @pytest.mark.parametrize("eta", [1.6, 1.37, complex(0.27, 3.4), complex(1.2, 7.0), complex(2.5, 0.3)])
-def test_bare_substrate_mueller_equals_mitsuba(eta):
+def test_bare_substrate_mueller_equals_mitsuba(variant_scalar_spectral_polarized, eta):
     """Thickness 0: our Mueller matrix equals Mitsuba's mueller.specular_reflection."""
-    import mitsuba as mi
-
-    mi.set_variant("scalar_spectral_polarized")
+    mi = variant_scalar_spectral_polarized
     import drjit as dr
 
     for theta in [0.0, 20.0, 45.0, 58.0, 75.0, 89.0]:
@@ -131,10 +129,8 @@ def test_quarter_wave_antireflection():
     assert abs(R_s - ((n3 - 1) / (n3 + 1)) ** 2) < 1e-12
 
 
-def test_drjit_backend_matches_numpy():
-    import mitsuba as mi
-
-    mi.set_variant("llvm_ad_spectral")
+def test_drjit_backend_matches_numpy(variant_llvm_ad_spectral):
+    mi = variant_llvm_ad_spectral
     th = np.linspace(0, 85, 11)
     lam = np.linspace(400, 700, 11)
     d = np.linspace(0, 1000, 11)
@@ -167,21 +163,10 @@ def test_material_errors_are_clear():
     assert abs(cauchy(400.0) - (1.5 + 0.004 / 0.16)) < 1e-12
 
 
-@pytest.mark.parametrize("module_name", ["thinfilm.bsdf.optics", "thinfilm.bsdf.materials", "thinfilm.colorimetry"])
-def test_docstring_examples(module_name):
-    import importlib
-
-    module = importlib.import_module(module_name)
-    result = doctest.testmod(module)
-    assert result.attempted > 0 and result.failed == 0
-
-
 @pytest.mark.parametrize("eta", [complex(1.6, 0.0), complex(0.27, 3.4), complex(2.5, 0.3)])
-def test_phase_convention_relative_to_mitsuba(eta):
+def test_phase_convention_relative_to_mitsuba(variant_scalar_spectral_polarized, eta):
     """Documented convention: our (tmm's) amplitudes are the complex conjugates of Mitsuba's."""
-    import mitsuba as mi
-
-    mi.set_variant("scalar_spectral_polarized")
+    mi = variant_scalar_spectral_polarized
     import drjit as dr
 
     for theta in [0.0, 30.0, 60.0, 80.0]:

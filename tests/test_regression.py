@@ -1,7 +1,7 @@
 """Regression suite: every reconstruction method scored on small rendered scenes.
 
-Each (preset, kind, method) of the benchmark (:data:`thinfilm.benchmark.PRESET_KINDS`, the
-paper and default methods of each ``thinfilm reconstruct`` kind) is run on a 48 px dataset of
+Each (preset, kind, method) of the benchmark (:data:`thinfilm.benchmark.PRESET_KINDS`, every
+built-in method of the estimator registry, of any role) is run on a 48 px dataset of
 the preset with its default camera noise (fixed seed, so the data are the same on every run),
 re-rendered and scored by :func:`thinfilm.evaluation.evaluate`. The scores must stay within
 the limits below: a change that makes an estimator worse fails CI.
@@ -74,12 +74,14 @@ ESTIMATES_FILM_IOR = ("spectral",)
 
 
 def _plan():
+    """Every built-in method of the estimator registry, of any role, on every preset it applies to."""
+    from thinfilm.core import registry
+
     cases = []
-    for kind in ("rgb", "spectral"):
-        try:
-            methods = benchmark._selected_methods(kind)
-        except Exception as e:  # reported by the test itself, never skipped
-            cases.append(pytest.param("-", kind, None, str(e), id=f"{kind}-unavailable"))
+    for kind in registry.KINDS:
+        methods = [m.name for m in registry.methods(kind) if m.source == "thinfilm"]
+        if not methods:  # reported by the test itself, never skipped
+            cases.append(pytest.param("-", kind, None, "no built-in method registered", id=f"{kind}-unavailable"))
             continue
         for preset, kinds in benchmark.PRESET_KINDS.items():
             if kind in kinds:
@@ -89,18 +91,15 @@ def _plan():
 
 
 @pytest.fixture(scope="module")
-def datasets(tmp_path_factory):
+def datasets(tmp_path_factory, render_variant_module):
     """Generate each preset once per module (48 px, default camera noise, seed 0)."""
     made = {}
 
     def get(preset):
         if preset not in made:
-            import mitsuba as mi
-
-            from thinfilm.generators.generate import VARIANT, generate_dataset
+            from thinfilm.generators.generate import generate_dataset
             from thinfilm.generators.spec import load_spec
 
-            mi.set_variant(VARIANT)
             out = tmp_path_factory.mktemp("regression") / preset
             generate_dataset(load_spec(preset, resolution=RESOLUTION, seed=0), out, progress=False)
             made[preset] = out
@@ -127,13 +126,10 @@ def _scores(result):
 @pytest.mark.parametrize("preset, kind, method, unavailable", _plan())
 def test_estimator_scores_within_limits(datasets, tmp_path, preset, kind, method, unavailable):
     assert unavailable is None, f"reconstruct {kind} cannot be benchmarked: {unavailable}"
-    import mitsuba as mi
-
     from thinfilm import evaluation as ev
 
     ds = datasets(preset)
-    benchmark._reconstruct(kind, ds, tmp_path / "est", method)
-    mi.set_variant(ev.RENDER_VARIANT)
+    benchmark.run_method(kind, ds, tmp_path / "est", method)
     scores = _scores(ev.evaluate(ds, tmp_path / "est"))
     limits = LIMITS.get((preset, kind, method))
     assert limits is not None, (f"no regression limits recorded for {(preset, kind, method)}; "

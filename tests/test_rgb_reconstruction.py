@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 
 from thinfilm.bsdf import optics
-from thinfilm.colorimetry import camera_weights
-from thinfilm.reconstruction import rgb
+from thinfilm.core.colorimetry import camera_weights
+from thinfilm.core.film import Film
+from thinfilm.reconstruction import rgb_paper
 from thinfilm.reconstruction.masks import mask_from_intensity, resolve_azimuth
 from thinfilm.reconstruction.rgb_invert import build_table, invert_pixels
 from thinfilm.reconstruction.rgb_model import FilmCamera, film_table
@@ -53,7 +54,7 @@ def test_per_pixel_inversion_is_exact_on_noise_free_values(n2, n3, rng_nm):
     d = np.concatenate([rng.uniform(*rng_nm, 300), [rng_nm[0], rng_nm[1], rng_nm[0], rng_nm[1], 500.0, rng_nm[1]]])
     az = rng.uniform(0, 360, zen.size)
     I = _optics_captures(zen, az, d, n2, n3, ANGLES)
-    model = FilmCamera(WL, n2, n3)
+    model = FilmCamera(WL, Film.single(n2, None, n3))
     fit = invert_pixels(model, I, ANGLES, rng_nm, table=build_table(model, rng_nm))
     assert np.abs(fit.zenith_deg - zen).max() < 0.1
     assert np.abs(fit.thickness_nm - d).max() < 0.5
@@ -70,7 +71,7 @@ def test_per_pixel_inversion_with_three_uneven_angles_and_a_dispersive_film():
 
     n2 = as_dispersion("MgF2")(WL)
     I = _optics_captures(zen, az, d, n2, 1.6, angles)
-    model = FilmCamera(WL, "MgF2", 1.6)
+    model = FilmCamera(WL, Film.single("MgF2", None, 1.6))
     fit = invert_pixels(model, I, angles, (250.0, 750.0))
     assert np.abs(fit.zenith_deg - zen).max() < 0.1
     assert np.abs(fit.thickness_nm - d).max() < 0.5
@@ -87,7 +88,7 @@ def test_film_table_reproduces_the_optics_core(n2, rng_nm):
     Measured: values 8e-6, ∂/∂cos θ 7e-5, ∂/∂d 4e-6 per nm (reflectances are O(0.1–1))."""
     from thinfilm.bsdf.materials import as_dispersion
 
-    table = film_table(FilmCamera(WL, n2, 1.6), rng_nm)
+    table = film_table(FilmCamera(WL, Film.single(n2, None, 1.6)), rng_nm)
     rng = np.random.default_rng(3)
     zen = np.concatenate([rng.uniform(0, 89.5, 1500), [0.0, 0.05, 89.5, 89.5]])
     d = np.concatenate([rng.uniform(*rng_nm, 1500), [rng_nm[0], rng_nm[1], rng_nm[0], rng_nm[1]]])
@@ -116,11 +117,14 @@ def test_film_table_reproduces_the_optics_core(n2, rng_nm):
 
 
 def test_film_table_built_on_llvm_equals_numpy():
-    """The optics core evaluated through Dr.Jit's LLVM backend (when this machine has it;
-    ``auto`` is NumPy otherwise) gives the same table as NumPy."""
-    model = FilmCamera(WL, "MgF2", 1.6)
+    """The optics core evaluated through Dr.Jit's LLVM backend (double precision, one fused
+    kernel) gives the same table as NumPy."""
+    import drjit as dr
+
+    assert dr.has_backend(dr.JitBackend.LLVM), "Dr.Jit's LLVM backend is missing (libLLVM)"
+    model = FilmCamera(WL, Film.single("MgF2", None, 1.6))
     a = film_table(model, (300.0, 600.0), backend="numpy")
-    b = film_table(model, (300.0, 600.0), backend="auto")
+    b = film_table(model, (300.0, 600.0), backend="llvm")
     assert a.coef.shape == b.coef.shape
     np.testing.assert_allclose(b.coef, a.coef, rtol=0, atol=1e-12)
 
@@ -148,7 +152,7 @@ def test_incoherent_curve_matches_the_papers_equations():
 
     I_s_ref = rs(n1, n2, t1, t2) + ts(t1, t2) * rs(n2, n3, t2, t3) * ts(t2, t3)
     I_p_ref = rp(n1, n2, t1, t2) + tp(t1, t2) * rp(n2, n3, t2, t3) * tp(t2, t3)
-    I_s, I_p, dop = rgb.incoherent_polarization_curve(n2, n3, np.degrees(t1))
+    I_s, I_p, dop = rgb_paper.incoherent_polarization_curve(n2, n3, np.degrees(t1))
     np.testing.assert_allclose(I_s, I_s_ref, rtol=1e-10)
     np.testing.assert_allclose(I_p, I_p_ref, rtol=1e-10)
     np.testing.assert_allclose(dop, (I_s_ref - I_p_ref) / (I_s_ref + I_p_ref), rtol=1e-9, atol=1e-12)
@@ -156,8 +160,8 @@ def test_incoherent_curve_matches_the_papers_equations():
 
 def test_zenith_from_dop_picks_the_branch_by_s_intensity():
     zen = np.array([10.0, 30.0, 50.0, 65.0, 80.0])
-    I_s, _, dop = rgb.incoherent_polarization_curve(1.37, 1.6, zen)
-    got, brewster = rgb.zenith_from_dop(dop, I_s, 1.37, 1.6)
+    I_s, _, dop = rgb_paper.incoherent_polarization_curve(1.37, 1.6, zen)
+    got, brewster = rgb_paper.zenith_from_dop(dop, I_s, 1.37, 1.6)
     assert 50.0 < brewster < 60.0
     np.testing.assert_allclose(got, zen, atol=0.05)
 
@@ -259,8 +263,9 @@ def synthetic_hemisphere(tmp_path_factory):
 
 def test_coherent_method_on_a_noisy_analytic_hemisphere(synthetic_hemisphere):
     path, (normals, mask, thick) = synthetic_hemisphere
-    cap, _ = rgb.capture_from_dataset(path, thickness_range=(200.0, 800.0))
-    res = rgb.reconstruct(cap, "coherent")
+    from thinfilm.reconstruct import reconstruct
+
+    res, _ = reconstruct("rgb", path, "coherent", thickness_range_nm=(200.0, 800.0))
     v = res.valid & mask
     assert v.sum() >= 0.9 * mask.sum()
     err = _angle_between(res.normals, normals)[v]
@@ -301,21 +306,21 @@ def rendered_cylinder(tmp_path_factory):
 def test_end_to_end_on_a_rendered_cylinder(rendered_cylinder, tmp_path, method, max_mean_deg,
                                            max_p95_deg, max_thick_nm):
     from thinfilm.cli import main
-    from thinfilm.dataset import read_dataset
-    from thinfilm.reconstruction.estimate import read_estimate
+    from thinfilm.core.io import read_dataset
+    from thinfilm.core.io import read_estimate
 
     out = tmp_path / "est"
     assert main(["reconstruct", "rgb", str(rendered_cylinder), "--out", str(out), "--method", method]) == 0
-    est, info = read_estimate(out)
-    assert info["method"] == method
+    est = read_estimate(out)
+    assert est.info["method"] == method
     gt = read_dataset(rendered_cylinder, need=("ground_truth",)).ground_truth
     m = gt["mask"]
-    v = est["valid"] & m
+    v = est.valid & m
     assert v.sum() >= 0.9 * m.sum()
-    err = _angle_between(est["normal"], gt["normal"])[v]
+    err = _angle_between(est.normals, gt["normal"])[v]
     assert err.mean() <= max_mean_deg
     assert np.percentile(err, 95) <= max_p95_deg
-    assert np.abs(est["thickness"] - gt["thickness"])[v].mean() <= max_thick_nm
+    assert np.abs(est.thickness_nm - gt["thickness"])[v].mean() <= max_thick_nm
     if method == "coherent":
         assert (out / "surface.ply").is_file()
 
@@ -359,7 +364,7 @@ def test_bad_options(small_dataset, tmp_path, capsys, extra, message):
 
 
 def test_missing_polarizer_layer(small_dataset, tmp_path, capsys):
-    from thinfilm.dataset import read_exr, write_exr
+    from thinfilm.core.io import read_exr, write_exr
 
     ds = _copy(small_dataset, tmp_path / "ds")
     ch = read_exr(ds / "polarized_rgb.exr")
@@ -370,7 +375,7 @@ def test_missing_polarizer_layer(small_dataset, tmp_path, capsys):
 
 
 def test_fewer_than_three_angles(small_dataset, tmp_path, capsys):
-    from thinfilm.dataset import read_exr, write_exr
+    from thinfilm.core.io import read_exr, write_exr
 
     ds = _copy(small_dataset, tmp_path / "ds")
     ch = read_exr(ds / "polarized_rgb.exr")
@@ -390,7 +395,7 @@ def test_no_polarized_images_and_no_indices(small_dataset, tmp_path, capsys):
 
     ds2 = _copy(small_dataset, tmp_path / "ds2")
     meta = json.loads((ds2 / "meta.json").read_text())
-    del meta["film_ior"]
+    del meta["film_ior"], meta["film"]
     (ds2 / "meta.json").write_text(json.dumps(meta))
     code, err = _run_cli(capsys, ds2, "--out", tmp_path / "est")
     assert code == 2 and "--film-ior" in err
@@ -410,7 +415,7 @@ def test_user_mask_and_indices_from_the_command_line(small_dataset, tmp_path, ca
     """A capture without meta indices works when they are given; a mask file restricts it."""
     ds = _copy(small_dataset, tmp_path / "ds")
     meta = json.loads((ds / "meta.json").read_text())
-    del meta["film_ior"], meta["substrate_ior"]
+    del meta["film_ior"], meta["substrate_ior"], meta["film"]
     (ds / "meta.json").write_text(json.dumps(meta))
     m = np.zeros((12, 12))
     m[3:9, 2:10] = 1
@@ -419,8 +424,8 @@ def test_user_mask_and_indices_from_the_command_line(small_dataset, tmp_path, ca
     code, err = _run_cli(capsys, ds, "--out", out, "--film-ior", "1.37", "--substrate-ior", "1.6",
                          "--mask", tmp_path / "m.npy", "--method", "paper", "--thickness-range", "300", "500")
     assert code == 0, err
-    from thinfilm.reconstruction.estimate import read_estimate
+    from thinfilm.core.io import read_estimate
 
-    est, info = read_estimate(out)
-    assert info["method"] == "kobayashi2023" and info["film_ior"] == 1.37
-    assert np.array_equal(est["valid"], m > 0)
+    est = read_estimate(out)
+    assert est.info["method"] == "kobayashi2023" and est.film_ior == 1.37
+    assert np.array_equal(est.valid, m > 0)

@@ -11,9 +11,10 @@ import tmm
 
 from thinfilm.bsdf.optics import reflectances
 from thinfilm.cli import main
-from thinfilm.errors import UserError
-from thinfilm.reconstruction import spectral as sp
+from thinfilm.core.errors import UserError
+from thinfilm.reconstruction import spectral_eikonal, spectral_fit, spectral_paper
 from thinfilm.reconstruction import spectral_model as sm
+from thinfilm.reconstruction.spectral import reconstruct_spectral
 from thinfilm.reconstruction.peaks import find_peaks
 
 WL = np.arange(400.0, 721.0, 4.0)
@@ -51,7 +52,7 @@ def test_published_search_recovers_n2_and_thickness_exactly():
     pk = find_peaks(S, WL)
     theta = sm.angle_from_peak(pk.value, N3)
     np.testing.assert_allclose(np.degrees(theta), THETA, atol=0.15)
-    n2, d, _ = sp.kobayashi_search(S, theta, pk.wavelength_nm, N3, WL)
+    n2, d, _ = spectral_paper.kobayashi_search(S, theta, pk.wavelength_nm, N3, WL)
     np.testing.assert_allclose(n2, N2, atol=1e-9)
     np.testing.assert_allclose(d, THICK, atol=1.0)
 
@@ -61,10 +62,10 @@ def test_default_recovers_angle_n2_and_thickness_exactly(n2_true):
     S = _spectra(THETA, THICK, n2=n2_true)
     pk = find_peaks(S, WL)
     theta = sm.angle_from_peak(pk.value, N3)
-    n2, info = sp.estimate_film_ior(S, theta, pk.wavelength_nm, N3, WL)
+    n2, info = spectral_fit.estimate_film_ior(S, theta, pk.wavelength_nm, N3, WL)
     assert n2 == pytest.approx(n2_true, abs=1e-5)
     d0 = THICK + 3.0
-    th, d, sse, sigma = sp.fit_angle_thickness(S, theta, d0, n2, N3, WL)
+    th, d, sse, sigma = spectral_fit.fit_angle_thickness(S, theta, d0, n2, N3, WL)
     np.testing.assert_allclose(np.degrees(th), THETA, atol=1e-3)
     np.testing.assert_allclose(d, THICK, atol=1e-2)
     assert np.all(sse < 1e-12)
@@ -76,10 +77,10 @@ def test_published_and_default_agree_where_both_are_well_posed():
     S = S * (1 + 0.005 * rng.standard_normal(S.shape))
     pk = find_peaks(S, WL)
     theta = sm.angle_from_peak(pk.value, N3)
-    n2_pub, d_pub, _ = sp.kobayashi_search(S, theta, pk.wavelength_nm, N3, WL)
-    n2_def, _ = sp.estimate_film_ior(S, theta, pk.wavelength_nm, N3, WL)
-    d0 = sp.initial_thickness(S, theta, pk.wavelength_nm, n2_def, N3, WL)
-    th, d_def, _, _ = sp.fit_angle_thickness(S, theta, d0, n2_def, N3, WL)
+    n2_pub, d_pub, _ = spectral_paper.kobayashi_search(S, theta, pk.wavelength_nm, N3, WL)
+    n2_def, _ = spectral_fit.estimate_film_ior(S, theta, pk.wavelength_nm, N3, WL)
+    d0 = spectral_fit.initial_thickness(S, theta, pk.wavelength_nm, n2_def, N3, WL)
+    th, d_def, _, _ = spectral_fit.fit_angle_thickness(S, theta, d0, n2_def, N3, WL)
     # one film index for the object: the median of the published per-pixel search and the
     # pooled default agree on the 0.01 grid
     assert abs(np.median(n2_pub) - n2_def) <= 0.011
@@ -113,11 +114,11 @@ def test_thickness_at_a_new_angle_matches_a_full_refit():
     S = S + 1e-3 * rng.standard_normal(S.shape)
     noise = np.full(S.shape[0], 1e-3)
     th0 = np.radians(THETA)
-    th, d, neq = sp._levenberg_marquardt(S, th0, THICK + 2.0, N2, N3, WL, stokes_noise=noise)
+    th, d, neq = spectral_fit._levenberg_marquardt(S, th0, THICK + 2.0, N2, N3, WL, stokes_noise=noise)
     for move_deg in (0.05, 0.2, 3.0):
         new = th + np.radians(move_deg) * np.where(np.arange(th.size) % 2, 1.0, -1.0)
-        d_new = sp._thickness_at(S, new, th, d, neq, N2, N3, WL, noise)
-        _, d_ref, _, _ = sp.fit_angle_thickness(S, new, d, N2, N3, WL, iterations=30, fit_theta=False,
+        d_new = spectral_fit._thickness_at(S, new, th, d, neq, N2, N3, WL, noise)
+        _, d_ref, _, _ = spectral_fit.fit_angle_thickness(S, new, d, N2, N3, WL, iterations=30, fit_theta=False,
                                                 stokes_noise=noise)
         np.testing.assert_allclose(d_new, d_ref, atol=0.02)
         if move_deg >= 3.0:
@@ -130,10 +131,10 @@ def test_unfolded_slope_inverts_the_folded_normal_mean():
     sigma = 0.07
     mu = np.array([0.0, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0])
     observed = np.array([stats.foldnorm(m / sigma, scale=sigma).mean() for m in mu])
-    np.testing.assert_allclose(sp._unfold_magnitude(observed, sigma), mu, atol=2e-4)
+    np.testing.assert_allclose(spectral_eikonal._unfold_magnitude(observed, sigma), mu, atol=2e-4)
     # below the mean of |N(0, σ²)| the slope is 0; the fold does not touch large slopes
-    assert sp._unfold_magnitude(0.5 * sigma, sigma) == 0.0
-    assert sp._unfold_magnitude(20 * sigma, sigma) == pytest.approx(20 * sigma, rel=1e-12)
+    assert spectral_eikonal._unfold_magnitude(0.5 * sigma, sigma) == 0.0
+    assert spectral_eikonal._unfold_magnitude(20 * sigma, sigma) == pytest.approx(20 * sigma, rel=1e-12)
 
 
 # --- surfaces (numpy hemisphere, no rendering) ---------------------------------------------------
@@ -156,7 +157,7 @@ def _normal_error_deg(a, b):
 
 def test_default_method_on_a_noiseless_hemisphere():
     cube, mask, normals = _hemisphere()
-    est = sp.reconstruct_spectral(cube, WL, N3)
+    est = reconstruct_spectral(cube, WL, N3)
     assert np.array_equal(est.valid, mask)
     err = _normal_error_deg(est.normals, normals)[mask]
     # measured: mean 0.80°, p95 2.45°, n2 exact to 1e-5, thickness median error 0.006 nm
@@ -167,7 +168,7 @@ def test_default_method_on_a_noiseless_hemisphere():
 
 def test_published_method_on_a_noiseless_hemisphere():
     cube, mask, normals = _hemisphere()
-    est = sp.reconstruct_spectral(cube, WL, N3, method="kobayashi")
+    est = reconstruct_spectral(cube, WL, N3, method=spectral_paper.reconstruct_kobayashi)
     v = est.valid
     # measured: coverage 0.844, n2 1.37 exactly (its 0.01 grid), median normal error 1.55°
     assert v.sum() > 0.8 * mask.sum() and not (v & ~mask).any()
@@ -180,13 +181,12 @@ def test_published_method_on_a_noiseless_hemisphere():
 def test_film_index_above_substrate_is_reported():
     cube, mask, _ = _hemisphere(n2=1.8, n3=1.6)
     with pytest.raises(UserError, match="n2 < n3"):
-        sp.reconstruct_spectral(cube, WL, N3)
+        reconstruct_spectral(cube, WL, N3)
 
 
 BAD_ARRAY_MESSAGES = {
     "few_bands": "only 9 spectral bands",
     "nan": "NaN or infinite",
-    "method": "unknown spectral method 'nope'",
     "substrate": "expected an index above 1",
 }
 
@@ -201,26 +201,17 @@ def test_bad_arrays(bad):
     elif bad == "nan":
         cube = cube.copy()
         cube[3, 3, 5] = np.nan
-    elif bad == "method":
-        kw["method"] = "nope"
     substrate = 0.9 if bad == "substrate" else N3
     with pytest.raises(UserError, match=BAD_ARRAY_MESSAGES[bad]):
-        sp.reconstruct_spectral(cube, wl, substrate, **kw)
+        reconstruct_spectral(cube, wl, substrate, **kw)
 
 
 # --- end to end on a rendered preset ------------------------------------------------------------
 
 @pytest.fixture(scope="module")
-def rendered(tmp_path_factory):
-    import mitsuba as mi
-
+def rendered(tmp_path_factory, render_variant_module):
     from thinfilm.generators import generate as gen
     from thinfilm.generators.spec import load_spec
-
-    mi.set_variant(gen.VARIANT)
-    import thinfilm.bsdf
-
-    thinfilm.bsdf.register()
 
     out = tmp_path_factory.mktemp("spectral") / "hemi"
     gen.generate_dataset(load_spec("hemisphere", resolution=48), out, progress=False)
@@ -233,14 +224,15 @@ def test_end_to_end_cli_on_rendered_hemisphere(rendered, tmp_path, capsys, metho
 
     import trimesh
 
-    from thinfilm.dataset import read_dataset
-    from thinfilm.reconstruction.estimate import read_estimate
+    from thinfilm.core.io import read_dataset, read_estimate
 
     out = tmp_path / "est"
     assert main(["reconstruct", "spectral", str(rendered), "--out", str(out)] + method_args) == 0
     printed = capsys.readouterr().out.strip().splitlines()
     assert len(printed) == 1 and printed[0].startswith(f"wrote {out} (method eikonal")
-    ch, info = read_estimate(out)
+    est = read_estimate(out)
+    info = {**est.info, "film_ior": est.film_ior, "substrate_ior": est.substrate_ior}
+    ch = {"valid": est.valid, "normal": est.normals, "thickness": est.thickness_nm}
     ds = read_dataset(rendered, need=("ground_truth",))
     gt = ds.ground_truth
     m = gt["mask"]
@@ -272,14 +264,14 @@ def test_end_to_end_cli_on_rendered_hemisphere(rendered, tmp_path, capsys, metho
 
 @pytest.mark.parametrize("name", ["kobayashi", "published", "paper"])
 def test_published_method_cli(rendered, tmp_path, capsys, name):
-    from thinfilm.reconstruction.estimate import read_estimate
+    from thinfilm.core.io import read_estimate
 
     out = tmp_path / "pub"
     assert main(["reconstruct", "spectral", str(rendered), "--out", str(out), "--method", name]) == 0
     assert capsys.readouterr().out.startswith(f"wrote {out} (method kobayashi")
-    _, info = read_estimate(out)
+    est = read_estimate(out)
     # measured: 1.37 exactly (the published search's 0.01 grid)
-    assert info["method"] == "kobayashi" and abs(info["film_ior"] - 1.37) <= 0.01
+    assert est.info["method"] == "kobayashi" and abs(est.film_ior - 1.37) <= 0.01
 
 
 def _copy(rendered, tmp_path):
@@ -289,7 +281,7 @@ def _copy(rendered, tmp_path):
 
 
 def _rewrite_spectral(path, fn):
-    from thinfilm.dataset import read_exr, write_exr
+    from thinfilm.core.io import read_exr, write_exr
 
     ch = read_exr(path / "spectral_s.exr")
     write_exr(path / "spectral_s.exr", fn(ch))
@@ -302,6 +294,7 @@ BAD_INPUT_MESSAGES = {
     "no_substrate": "meta.json: no 'substrate_ior'",
     "bad_mask": "mask.exr: mask has shape (5, 5)",
     "n2_method": "unknown spectral method 'unknown'",
+    "rgb_method": "unknown spectral method 'coherent' ('coherent' is a rgb method)",
     "absorbing_substrate": "meta.json: substrate_k = 0.5 (absorbing substrate); the spectral method assumes a "
                            "dielectric substrate",
 }
@@ -325,19 +318,22 @@ def test_bad_input_exits_2_with_one_line(rendered, tmp_path, capsys, case):
         (ds / "meta.json").write_text(json.dumps(meta))
     elif case == "no_substrate":
         meta = json.loads((ds / "meta.json").read_text())
-        del meta["substrate_ior"]
+        del meta["substrate_ior"], meta["film"]
         (ds / "meta.json").write_text(json.dumps(meta))
     elif case == "bad_mask":
-        from thinfilm.dataset import write_exr
+        from thinfilm.core.io import write_exr
 
         write_exr(tmp_path / "mask.exr", {"mask": np.ones((5, 5))})
         extra = ["--mask", str(tmp_path / "mask.exr")]
     elif case == "n2_method":
         extra = ["--method", "unknown"]
+    elif case == "rgb_method":
+        extra = ["--method", "coherent"]
     elif case == "absorbing_substrate":
         # spectral_s is then max(R_s, R_p), not R_s: the method assumes a dielectric substrate
         meta = json.loads((ds / "meta.json").read_text())
         meta["substrate_k"] = 0.5
+        meta["film"]["substrate"]["ior"] = {"n": meta["substrate_ior"], "k": 0.5}
         (ds / "meta.json").write_text(json.dumps(meta))
     out = tmp_path / "est"
     assert main(["reconstruct", "spectral", str(ds), "--out", str(out)] + extra) == 2

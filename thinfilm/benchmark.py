@@ -4,8 +4,8 @@ For each preset (``hemisphere``, ``cylinder``, ``pyramid``) a dataset is generat
 preset's default (camera) noise; every reconstruction method that applies to it is run —
 the RGB-polarization methods on all three, the spectral methods on the hemisphere and the
 cylinder (the paper's simulated objects; the pyramid's flat faces leave the spectral
-method's eikonal integration nothing to integrate from), each in its paper variant and
-its default — and every estimate is re-rendered and scored by :mod:`thinfilm.evaluation`.
+method's eikonal integration nothing to integrate from), every method of the estimator
+registry of every role — and every estimate is re-rendered and scored by :mod:`thinfilm.evaluation`.
 The ground truth itself is scored too: its ΔE is the capture-noise floor.
 
 ``--quick`` renders at :data:`QUICK_RESOLUTION` px (the full run at the presets' own
@@ -16,22 +16,19 @@ ours, and the figures), ``results.json``, and ``datasets/``, ``estimates/``, ``e
 from __future__ import annotations
 
 import argparse
-import importlib
-import io
 import sys
 import time
 import traceback
-from contextlib import redirect_stdout
 from pathlib import Path
 
-
-from .errors import UserError
+from thinfilm.core.errors import UserError
 
 __all__ = [
     "PRESET_KINDS",
     "QUICK_RESOLUTION",
     "PAPER_FIGURES",
-    "discover_methods",
+    "benchmark_methods",
+    "run_method",
     "run_benchmark",
     "write_report",
     "cli_main",
@@ -75,88 +72,54 @@ PAPER_FIGURES = {
 }
 
 
-# -- method discovery ------------------------------------------------------------------------------
-
-def discover_methods(kind: str) -> dict:
-    """The methods of ``thinfilm reconstruct KIND``: name → role (``"paper"``, ``"default"``,
-    ``"paper, default"`` or ``"other"``), read from the module's registry.
-
-    The module ``thinfilm.reconstruction.<kind>`` is expected to expose a ``METHODS`` mapping
-    (or ``methods()``) and the names ``DEFAULT_METHOD`` and ``PAPER_METHOD``.
-
-    Raises
-    ------
-    UserError
-        When the module or its registry is missing.
-    """
-    name = f"thinfilm.reconstruction.{kind}"
-    try:
-        mod = importlib.import_module(name)
-    except ModuleNotFoundError as e:
-        if e.name and e.name.startswith("thinfilm"):
-            raise UserError(f"reconstruction module {name} is not available in this version") from None
-        raise
-    registry = getattr(mod, "METHODS", None)
-    if registry is None and callable(getattr(mod, "methods", None)):
-        registry = mod.methods()
-    if not registry:
-        raise UserError(f"{name} has no METHODS registry to benchmark")
-    default = getattr(mod, "DEFAULT_METHOD", None)
-    paper = getattr(mod, "PAPER_METHOD", None)
-    roles = {}
-    for m in registry:
-        tags = [t for t, ref in (("paper", paper), ("default", default)) if m == ref]
-        roles[m] = ", ".join(tags) if tags else "other"
-    return roles
-
-
-def _selected_methods(kind: str) -> dict:
-    """Paper and default methods of a kind (every method when neither is named)."""
-    roles = discover_methods(kind)
-    chosen = {m: r for m, r in roles.items() if r != "other"}
-    return chosen or roles
-
-
 # -- steps -------------------------------------------------------------------------------------
 
+def benchmark_methods(kind: str) -> dict:
+    """Every registered method of ``kind`` (any role): name → role."""
+    from thinfilm.core import registry
+
+    return {m.name: m.role for m in registry.methods(kind)}
+
+
 def _generate(preset: str, resolution, out: Path) -> None:
-    from thinfilm.generators.generate import generate_dataset, set_variant
+    from thinfilm.core.variants import use_variant
+    from thinfilm.generators.generate import generate_dataset
     from thinfilm.generators.spec import load_spec
 
-    set_variant()
+    use_variant()
     spec = load_spec(preset, resolution=resolution)
     generate_dataset(spec, out, progress=False)
 
 
-def _reconstruct(kind: str, dataset: Path, out: Path, method: str) -> None:
-    from .cli import build_parser
+def run_method(kind: str, dataset: Path, out: Path, method: str) -> None:
+    """Reconstruct ``dataset`` with registered ``method`` of ``kind`` into the folder ``out``."""
+    from thinfilm.core.io import write_estimate
+    from thinfilm.core.outputs import atomic_output_dir
+    from thinfilm.reconstruct import reconstruct
 
-    args = build_parser().parse_args(["reconstruct", kind, str(dataset), "--out", str(out), "--method", method])
-    module_name, func = args.target.split(":")
-    with redirect_stdout(io.StringIO()):
-        code = getattr(importlib.import_module(module_name), func)(args)
-    if code:
-        raise RuntimeError(f"reconstruct {kind} --method {method} returned {code}")
+    est, _ = reconstruct(kind, dataset, method)
+    with atomic_output_dir(out) as tmp:
+        write_estimate(tmp, est)
 
 
 def _ground_truth_estimate(dataset: Path, out: Path) -> None:
-    from thinfilm.reconstruction.estimate import write_estimate
-
-    from .dataset import read_dataset
+    from thinfilm.core.io import Estimate, read_dataset, write_estimate
+    from thinfilm.core.outputs import atomic_output_dir
 
     ds = read_dataset(dataset, need=("ground_truth",))
     gt = ds.ground_truth
-    write_estimate(out, gt["normal"], gt["thickness"], gt["mask"],
-                   {"method": "ground_truth", "film_ior": ds.meta["film_ior"],
-                    "substrate_ior": ds.meta["substrate_ior"], "timings_s": {}})
+    est = Estimate(gt["normal"], gt["thickness"], gt["mask"], ds.meta["film_ior"], ds.meta["substrate_ior"],
+                   info={"method": "ground_truth", "timings_s": {}})
+    with atomic_output_dir(out) as tmp:
+        write_estimate(tmp, est)
 
 
 def _evaluate(dataset: Path, estimate: Path, out: Path) -> dict:
-    from thinfilm.generators.generate import set_variant
+    from thinfilm.core.variants import use_variant
 
     from . import evaluation
 
-    set_variant()  # the evaluation re-renders in the generator's variant
+    use_variant()  # the evaluation re-renders in the generator's variant
     r = evaluation.evaluate(dataset, estimate, out)
     return {"metrics": r["metrics"], "coverage": r["info"]["coverage"],
             "film_ior_estimated": r["info"]["film_ior_estimated"]}
@@ -174,7 +137,8 @@ def run_benchmark(out, quick=False, presets=None, progress=True, resolution=None
     """
     from tqdm import tqdm
 
-    from .dataset import atomic_output_dir, write_json
+    from thinfilm.core.io import write_json
+    from thinfilm.core.outputs import atomic_output_dir
 
     presets = list(presets or PRESET_KINDS)
     for p in presets:
@@ -182,13 +146,8 @@ def run_benchmark(out, quick=False, presets=None, progress=True, resolution=None
             raise UserError(f"unknown preset {p!r}: expected one of {', '.join(PRESET_KINDS)}")
     if resolution is None and quick:
         resolution = QUICK_RESOLUTION
-    methods = {}
-    missing = {}
-    for kind in ("rgb", "spectral"):
-        try:
-            methods[kind] = _selected_methods(kind)
-        except UserError as e:
-            missing[kind] = str(e)
+    methods = {kind: benchmark_methods(kind) for kind in ("rgb", "spectral")}
+    missing = {kind: "no method registered" for kind, found in methods.items() if not found}
     plan = []
     for preset in presets:
         plan.append(("generate", preset, None, None))
@@ -225,7 +184,7 @@ def run_benchmark(out, quick=False, presets=None, progress=True, resolution=None
                 if step == "ground_truth":
                     _ground_truth_estimate(ds_dir, est_dir)
                 else:
-                    _reconstruct(kind, ds_dir, est_dir, method)
+                    run_method(kind, ds_dir, est_dir, method)
                 row["reconstruct_s"] = round(time.perf_counter() - t0, 2)
                 t0 = time.perf_counter()
                 row.update(_evaluate(ds_dir, est_dir, ev_dir))

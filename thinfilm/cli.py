@@ -4,8 +4,9 @@ Each subcommand's arguments are declared here (the contract of ``DESIGN.md``); t
 is done by a ``cli_main(args)`` function in the module that owns it, imported only when
 that subcommand runs so that ``thinfilm --help`` stays instant.
 
-Bad input raises :class:`thinfilm.errors.UserError`; it is printed as one line on stderr
-and the exit code is 2.
+Bad input raises :class:`thinfilm.core.errors.UserError`; it is printed as one line on stderr
+and the exit code is 2. Warnings (:class:`thinfilm.core.errors.ThinfilmWarning`) are printed
+as one ``thinfilm: warning: ...`` line each.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ import importlib
 import sys
 
 from . import __version__
-from .errors import UserError
+from .core.errors import UserError
 
 __all__ = ["main", "build_parser"]
 
@@ -74,16 +75,22 @@ def build_parser() -> argparse.ArgumentParser:
     rgb.add_argument("--film-ior", type=float, default=None)
     rgb.add_argument("--substrate-ior", type=float, default=None)
     rgb.add_argument("--thickness-range", type=float, nargs=2, metavar=("MIN", "MAX"), default=None)
-    rgb.add_argument("--method", default=None)
+    rgb.add_argument("--method", default=None,
+                     help="a method of 'thinfilm methods', or package.module:function (default: the kind's default)")
     rgb.add_argument("--mask", default=None, help="optional mask image (non-zero on the object)")
-    rgb.set_defaults(target="thinfilm.reconstruction.rgb:cli_main")
+    rgb.set_defaults(target="thinfilm.reconstruct:cli_main")
     sp = rsub.add_parser("spectral", help="from s-polarized hyperspectral images (film index estimated)")
     sp.add_argument("dataset")
     sp.add_argument("--out", required=True)
     sp.add_argument("--substrate-ior", type=float, default=None)
-    sp.add_argument("--method", default=None)
+    sp.add_argument("--method", default=None,
+                    help="a method of 'thinfilm methods', or package.module:function (default: the kind's default)")
     sp.add_argument("--mask", default=None, help="optional mask image (non-zero on the object)")
-    sp.set_defaults(target="thinfilm.reconstruction.spectral:cli_main")
+    sp.set_defaults(target="thinfilm.reconstruct:cli_main")
+
+    me = sub.add_parser("methods", help="list the reconstruction methods (built-in and installed)")
+    me.add_argument("--json", action="store_true", help="one JSON object per method, for machines")
+    me.set_defaults(target="thinfilm.methods_command:cli_main")
 
     ev = sub.add_parser("evaluate", help="re-render an estimate and score it against the captures")
     ev.add_argument("dataset")
@@ -98,7 +105,16 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _one_line_warning(message, category, filename, lineno, line=None):
+    """Warnings as one ``thinfilm: warning: ...`` line (no source line, no file name)."""
+    text = " ".join(str(message).split())
+    return f"thinfilm: warning: {text}\n"
+
+
 def main(argv=None) -> int:
+    import warnings
+
+    warnings.formatwarning = _one_line_warning
     args = build_parser().parse_args(argv)
     module_name, func_name = args.target.split(":")
     try:

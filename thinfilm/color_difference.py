@@ -10,8 +10,8 @@ illuminant, relative to the perfect reflecting diffuser (reflectance 1 at every 
     k = 100 / \\sum_\\lambda E(\\lambda) \\bar y(\\lambda) \\Delta\\lambda .
 
 ``Δλ`` are the trapezoid weights of the band grid
-(:func:`thinfilm.colorimetry.band_widths`) and the illuminant comes from
-:func:`thinfilm.colorimetry.illuminant_spd`: the same quadrature and light as camera RGB,
+(:func:`thinfilm.core.colorimetry.band_widths`) and the illuminant comes from
+:func:`thinfilm.core.colorimetry.illuminant_spd`: the same quadrature and light as camera RGB,
 so a camera that satisfies the Luther condition gives exactly these XYZ. CIELAB (``colour.XYZ_to_Lab``) and the colour
 differences (``colour.delta_E``, methods ``"CIE 1976"`` — the paper's Eq. 31 — and
 ``"CIE 2000"``) come from colour-science.
@@ -29,8 +29,8 @@ Examples
 --------
 >>> import numpy as np
 >>> wl = np.arange(400.0, 721.0, 4.0)
->>> np.round(spectra_to_lab(np.ones(wl.shape), wl), 6).tolist()
-[100.0, 0.0, 0.0]
+>>> np.round(spectra_to_lab(np.ones(wl.shape), wl), 6).tolist() == [100.0, 0.0, 0.0]
+True
 """
 
 from __future__ import annotations
@@ -39,8 +39,8 @@ import functools
 
 import numpy as np
 
-from .colorimetry import DEFAULT_CAMERA, DEFAULT_ILLUMINANT, band_widths, camera_weights, illuminant_spd
-from .errors import UserError
+from thinfilm.core.colorimetry import DEFAULT_CAMERA, DEFAULT_ILLUMINANT, band_widths, camera_weights, illuminant_spd
+from thinfilm.core.errors import UserError
 
 __all__ = [
     "OBSERVER",
@@ -128,7 +128,7 @@ def fit_camera_to_xyz(wavelengths_nm, camera: str = DEFAULT_CAMERA,
     """3×3 matrix M with ``XYZ ≈ rgb @ M`` for white-balanced camera RGB.
 
     Least squares ``min ‖C M − X‖²`` over the band grid, where the rows of C are the
-    camera's white-balanced band weights (:func:`thinfilm.colorimetry.camera_weights`) and
+    camera's white-balanced band weights (:func:`thinfilm.core.colorimetry.camera_weights`) and
     the rows of X the XYZ band weights (:func:`xyz_weights`), subject to
     ``(1, 1, 1) M = XYZ_white`` so that white is reproduced exactly. Solved per column
     through the KKT system.

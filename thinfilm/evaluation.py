@@ -37,9 +37,8 @@ from pathlib import Path
 
 import numpy as np
 
-from thinfilm.generators.generate import VARIANT as RENDER_VARIANT
-
-from .errors import UserError
+from thinfilm.core.errors import UserError
+from thinfilm.core.variants import RENDER_VARIANT
 
 __all__ = [
     "METRIC_KEYS",
@@ -49,7 +48,6 @@ __all__ = [
     "geometry_error_maps",
     "s_polarized_rgb",
     "appearance_error_maps",
-    "film_ior_value",
     "metrics_from_maps",
     "render_normal_map",
     "rerender_estimate",
@@ -92,19 +90,19 @@ def angular_error_deg(normals_a, normals_b) -> np.ndarray:
     return np.degrees(np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.sum(a * b, axis=-1)))
 
 
-def geometry_error_maps(ground_truth: dict, estimate: dict) -> dict:
+def geometry_error_maps(ground_truth: dict, estimate) -> dict:
     """Per-pixel ``normal_error_deg``, ``zenith_error_deg`` (|θ_est − θ_gt|) and
     ``thickness_error_nm`` (|d_est − d_gt|); NaN where the estimate is invalid."""
-    from thinfilm.reconstruction.estimate import normals_to_angles
+    from thinfilm.core.conventions import normals_to_angles
 
-    valid = estimate["valid"]
-    normal = np.asarray(estimate["normal"], dtype=np.float64)
+    valid = estimate.valid
+    normal = np.asarray(estimate.normals, dtype=np.float64)
     with np.errstate(invalid="ignore"):
         zen_est = normals_to_angles(normal / np.linalg.norm(normal, axis=-1, keepdims=True))[0]
         maps = {
-            "normal_error_deg": angular_error_deg(estimate["normal"], ground_truth["normal"]),
+            "normal_error_deg": angular_error_deg(estimate.normals, ground_truth["normal"]),
             "zenith_error_deg": np.abs(zen_est - np.asarray(ground_truth["zenith"], dtype=np.float64)),
-            "thickness_error_nm": np.abs(np.asarray(estimate["thickness"], dtype=np.float64)
+            "thickness_error_nm": np.abs(np.asarray(estimate.thickness_nm, dtype=np.float64)
                                          - np.asarray(ground_truth["thickness"], dtype=np.float64)),
         }
     return {k: np.where(valid, v, np.nan) for k, v in maps.items()}
@@ -113,18 +111,17 @@ def geometry_error_maps(ground_truth: dict, estimate: dict) -> dict:
 def s_polarized_rgb(polarized_rgb: dict, where: str = "polarized_rgb.exr") -> np.ndarray:
     """S-polarized camera RGB ``S0 + sqrt(S1² + S2²)`` per channel (H, W, 3) from polarizer
     images {angle: (H, W, 3)}: the least-squares Stokes fit
-    (:func:`thinfilm.reconstruction.polarization.stokes_from_dataset`) turned into the
-    s-polarized capture as :func:`thinfilm.generators.render.spectral_s_from_stokes` defines it.
+    (:func:`thinfilm.core.conventions.stokes_from_polarizer_images`) turned into the
+    s-polarized capture (:func:`thinfilm.core.conventions.s_polarized`).
 
     Raises
     ------
     UserError
         Naming ``where`` when fewer than three distinct polarizer angles are given.
     """
-    from thinfilm.generators.render import spectral_s_from_stokes
-    from thinfilm.reconstruction.polarization import stokes_from_dataset
+    from thinfilm.core.conventions import s_polarized, stokes_from_polarizer_images
 
-    return spectral_s_from_stokes(dict(zip(("S0", "S1", "S2"), stokes_from_dataset(polarized_rgb, where))))
+    return s_polarized(*stokes_from_polarizer_images(polarized_rgb, where))
 
 
 def appearance_error_maps(captured, rendered, wavelengths_nm, illuminant, kind="spectra", camera=None):
@@ -161,22 +158,6 @@ def appearance_error_maps(captured, rendered, wavelengths_nm, illuminant, kind="
             "spectral_rmse": rmse, "lab_captured": lab_c, "lab_rendered": lab_r}
 
 
-def film_ior_value(film_ior, wavelengths_nm, where="film_ior") -> float:
-    """A film index as one number: a number as is; a named material or dispersion
-    (``thinfilm.bsdf.materials.as_dispersion``) averaged over ``wavelengths_nm``."""
-    if isinstance(film_ior, bool):
-        raise UserError(f"{where}: expected a refractive index, got {film_ior!r}")
-    if isinstance(film_ior, (int, float)):
-        return float(film_ior)
-    from thinfilm.bsdf.materials import as_dispersion
-
-    try:
-        disp = as_dispersion(film_ior)
-    except (ValueError, TypeError, KeyError) as e:
-        raise UserError(f"{where}: expected a refractive index or material name, got {film_ior!r} ({e})") from None
-    return float(np.mean(np.asarray(disp(np.asarray(wavelengths_nm, dtype=np.float64)), dtype=np.float64)))
-
-
 def metrics_from_maps(maps: dict, mask, film_ior_error) -> dict:
     """``metrics.json`` content: each of :data:`METRIC_KEYS` summarized over ``mask``, plus
     ``film_ior_error``."""
@@ -187,14 +168,14 @@ def metrics_from_maps(maps: dict, mask, film_ior_error) -> dict:
 
 # -- re-rendering -----------------------------------------------------------------------------
 
-def render_normal_map(normals, thickness_nm, valid, wavelengths_nm, film_ior, substrate_ior,
-                      substrate_k=0.0, dome_hole_deg=0.0, band_fwhm_nm=0.0, passband="gaussian",
-                      progress=False) -> dict:
+def render_normal_map(normals, thickness_nm, valid, wavelengths_nm, film, dome_hole_deg=0.0, band_fwhm_nm=0.0,
+                      passband="gaussian", progress=False) -> dict:
     """Band-integrated Stokes cube of a per-pixel normal and thickness field (any H × W),
     rendered through the ``thinfilm`` plugin under the generator's orthographic camera and
     dome: the generator's :func:`thinfilm.generators.scene.normal_map_scene` and
     :func:`thinfilm.generators.render.render_stokes_cube` (the code that rendered the
-    captures). Needs a vectorized mono polarized variant set by the caller.
+    captures). ``film`` is a :class:`thinfilm.core.film.Film`. Needs a vectorized mono
+    polarized variant set by the caller.
 
     Returns
     -------
@@ -215,9 +196,7 @@ def render_normal_map(normals, thickness_nm, valid, wavelengths_nm, film_ior, su
     safe_normals = np.where(valid[..., None], np.nan_to_num(normals), [0.0, 0.0, 1.0])
     thickness = np.where(valid, np.asarray(thickness_nm, dtype=np.float64), 0.0)
     thickness = np.clip(np.nan_to_num(thickness), 0.0, None)
-    film = film_ior if isinstance(film_ior, str) else float(film_ior)
-    scene = normal_map_scene(safe_normals, thickness, valid, film, float(substrate_ior), float(substrate_k),
-                             rig={"dome_hole_deg": float(dome_hole_deg)})
+    scene = normal_map_scene(safe_normals, thickness, valid, film, dome_hole_deg=float(dome_hole_deg))
     out = render_stokes_cube(scene, wl, float(band_fwhm_nm), passband, progress=progress)
     out.pop("mask", None)
     for s in ("S0", "S1", "S2"):
@@ -225,62 +204,75 @@ def render_normal_map(normals, thickness_nm, valid, wavelengths_nm, film_ior, su
     return out
 
 
-def rerender_estimate(meta: dict, estimate: dict, film_ior, substrate_ior, progress=False) -> dict:
-    """Re-render an estimate with the dataset's rig (``meta.json``: bands, passband, dome,
-    polarizer angles, camera, illuminant; no noise): returns the Stokes cube and the
-    noise-free captures ``spectral_s`` (H, W, B) and ``polarized_rgb`` {angle: (H, W, 3)}
-    (:func:`thinfilm.generators.render.captures_from_stokes`)."""
-    from thinfilm.generators.render import captures_from_stokes
-
-    from .colorimetry import DEFAULT_CAMERA, DEFAULT_ILLUMINANT
+def rerender_estimate(meta: dict, estimate, film, progress=False) -> dict:
+    """Re-render an :class:`~thinfilm.core.io.Estimate` of a film with the dataset's rig
+    (``meta.json``: bands, passband, dome, polarizer angles, camera, illuminant; no noise):
+    returns the Stokes cube and the noise-free captures ``spectral_s`` (H, W, B) and
+    ``polarized_rgb`` {angle: (H, W, 3)} (:func:`thinfilm.generators.captures.captures_from_stokes`)."""
+    from thinfilm.core.colorimetry import DEFAULT_CAMERA, DEFAULT_ILLUMINANT
+    from thinfilm.generators.captures import captures_from_stokes
 
     wl = np.asarray(meta["wavelengths_nm"], dtype=np.float64)
     stokes = render_normal_map(
-        estimate["normal"], estimate["thickness"], estimate["valid"], wl, film_ior, substrate_ior,
-        float(meta.get("substrate_k", 0.0) or 0.0), dome_hole_deg=float(meta.get("dome_hole_deg", 0.0) or 0.0),
+        estimate.normals, estimate.thickness_nm, estimate.valid, wl, film,
+        dome_hole_deg=float(meta.get("dome_hole_deg", 0.0) or 0.0),
         band_fwhm_nm=float(meta.get("band_fwhm_nm", 0.0) or 0.0), passband=meta.get("passband", "gaussian"),
         progress=progress)
-    rig = {"camera": meta.get("camera", DEFAULT_CAMERA), "illuminant": meta.get("illuminant", DEFAULT_ILLUMINANT),
-           "polarizer_angles_deg": meta.get("polarizer_angles_deg", [0, 45, 90, 135])}
-    polarized_rgb, spectral_s = captures_from_stokes(stokes, wl, rig)
+    polarized_rgb, spectral_s = captures_from_stokes(
+        stokes, wl, meta.get("polarizer_angles_deg", [0, 45, 90, 135]), meta.get("camera", DEFAULT_CAMERA),
+        meta.get("illuminant", DEFAULT_ILLUMINANT))
     return {"stokes": stokes, "spectral_s": spectral_s, "polarized_rgb": polarized_rgb}
 
 
 # -- the evaluate command -------------------------------------------------------------------
 
-def check_estimate(estimate: dict, info: dict, shape, estimate_path) -> None:
-    """Stop with one line when the estimate does not fit the dataset: image size,
-    or a missing / non-numeric ``film_ior`` or ``substrate_ior`` in ``estimate.json``."""
+def check_estimate(estimate, shape, estimate_path) -> None:
+    """Stop with one line when an :class:`~thinfilm.core.io.Estimate` does not fit the
+    dataset: image size, a missing or invalid ``film_ior`` or ``substrate_ior`` in
+    ``estimate.json``, NaN or zero normals at valid pixels."""
     exr = Path(estimate_path) / "estimate.exr"
     js = Path(estimate_path) / "estimate.json"
-    got = tuple(estimate["valid"].shape)
+    got = tuple(estimate.valid.shape)
     if got != tuple(shape):
         raise UserError(f"{exr}: image is {got[1]}x{got[0]} pixels but the dataset is "
                         f"{shape[1]}x{shape[0]}; the estimate does not belong to this dataset")
-    for key in ("film_ior",):
-        if key not in info:
-            raise UserError(f"{js}: missing field '{key}'")
-    sub = info.get("substrate_ior")
+    if estimate.film_ior is None:
+        raise UserError(f"{js}: missing field 'film_ior'")
+    sub = estimate.substrate_ior
     if sub is not None and (isinstance(sub, bool) or not isinstance(sub, (int, float)) or not sub > 0):
         raise UserError(f"{js}: field 'substrate_ior' must be a positive number, got {sub!r}")
-    fi = info["film_ior"]
+    fi = estimate.film_ior
     if isinstance(fi, (int, float)) and not isinstance(fi, bool) and not fi > 0:
         raise UserError(f"{js}: field 'film_ior' must be positive, got {fi!r}")
-    valid = estimate["valid"]
-    for name, arr in (("normal", estimate["normal"]), ("thickness", estimate["thickness"])):
-        bad = valid & ~np.all(np.isfinite(arr.reshape(*valid.shape, -1)), axis=-1)
+    valid = estimate.valid
+    for name, arr in (("normal", estimate.normals), ("thickness", estimate.thickness_nm)):
+        bad = valid & ~np.all(np.isfinite(np.asarray(arr).reshape(*valid.shape, -1)), axis=-1)
         if bad.any():
             raise UserError(f"{exr}: channel '{name}' is NaN or infinite at {int(bad.sum())} pixels "
                             f"marked valid")
-    nz = np.linalg.norm(estimate["normal"], axis=-1)
+    nz = np.linalg.norm(estimate.normals, axis=-1)
     if valid.any() and np.any(nz[valid] < 1e-6):
         raise UserError(f"{exr}: channels 'normal.X/Y/Z' are zero at pixels marked valid")
 
 
-def _read_estimate(path):
-    from thinfilm.reconstruction.estimate import read_estimate
+def estimated_film(dataset, estimate, estimate_path):
+    """The film an estimate is re-rendered with: the dataset's (its substrate, exterior, k),
+    with the estimate's film index and, where it gives one, substrate index."""
+    from thinfilm.core.film import Film, as_index
 
-    return read_estimate(path)
+    js = Path(estimate_path) / "estimate.json"
+    index = as_index(estimate.film_ior, f"{js}: field 'film_ior'")
+    try:
+        film = dataset.film()
+    except UserError:
+        sub = estimate.substrate_ior if estimate.substrate_ior is not None else dataset.meta.get("substrate_ior")
+        if sub is None:
+            raise UserError(f"{js}: no 'substrate_ior', and the dataset's meta.json has none") from None
+        return Film.single(index, None, sub, where=str(js))
+    film = film.with_index(index)
+    if estimate.substrate_ior is not None and abs(estimate.substrate_ior - film.effective_substrate_index()) > 1e-12:
+        film = film.with_substrate(estimate.substrate_ior)
+    return film
 
 
 def evaluate(dataset_path, estimate_path, out=None, progress=False, figures=True) -> dict:
@@ -294,35 +286,30 @@ def evaluate(dataset_path, estimate_path, out=None, progress=False, figures=True
     content), ``maps`` (per-pixel error images), ``mask``, ``rendered``, ``captured`` and
     the ``dataset`` and ``estimate``.
     """
-    from .colorimetry import DEFAULT_CAMERA, DEFAULT_ILLUMINANT
-    from .dataset import read_dataset
+    from thinfilm.core.colorimetry import DEFAULT_CAMERA, DEFAULT_ILLUMINANT
+    from thinfilm.core.io import read_dataset, read_estimate
 
     t0 = time.perf_counter()
     ds = read_dataset(dataset_path, need=())
     if ds.spectral_s is None and not ds.polarized_rgb:
         raise UserError(f"{ds.path}: dataset holds neither spectral_s.exr nor polarized_rgb.exr, "
                         f"nothing to compare the re-rendering with")
-    estimate, info = _read_estimate(estimate_path)
-    check_estimate(estimate, info, ds.shape, estimate_path)
+    estimate = read_estimate(estimate_path)
+    check_estimate(estimate, ds.shape, estimate_path)
     meta = ds.meta
     wl = ds.wavelengths_nm
     if wl.size < 2:
         raise UserError(f"{ds.path / 'meta.json'}: 'wavelengths_nm' needs at least 2 bands to re-render")
     camera = meta.get("camera", DEFAULT_CAMERA)
     illuminant = meta.get("illuminant", DEFAULT_ILLUMINANT)
-    js = Path(estimate_path) / "estimate.json"
-    film_est = info["film_ior"]
-    film_est_value = film_ior_value(film_est, wl, f"{js}: field 'film_ior'")
-    substrate = info.get("substrate_ior")
-    if substrate is None:
-        substrate = meta.get("substrate_ior", 1.6)
+    film = estimated_film(ds, estimate, estimate_path)
 
     have_gt = bool(ds.ground_truth)
-    valid = estimate["valid"]
+    valid = estimate.valid
     mask = (ds.ground_truth["mask"] & valid) if have_gt else valid.copy()
 
     t_render = time.perf_counter()
-    rendered = rerender_estimate(meta, estimate, film_est, substrate, progress=progress)
+    rendered = rerender_estimate(meta, estimate, film, progress=progress)
     t_render = time.perf_counter() - t_render
 
     maps = {}
@@ -352,17 +339,18 @@ def evaluate(dataset_path, estimate_path, out=None, progress=False, figures=True
     film_true = meta.get("film_ior")
     film_err = None
     if film_true is not None:
-        film_err = abs(film_est_value - film_ior_value(film_true, wl, f"{ds.path / 'meta.json'}: field 'film_ior'"))
+        # one number for each index: the effective index of thinfilm.core.film
+        film_err = abs(film.effective_index() - ds.film().effective_index())
     metrics = metrics_from_maps(maps, mask, film_err)
 
     n_mask = int(ds.ground_truth["mask"].sum()) if have_gt else int(valid.sum())
     info_out = {
         "dataset": str(Path(dataset_path)),
         "estimate": str(Path(estimate_path)),
-        "method": info.get("method"),
-        "film_ior_estimated": film_est if isinstance(film_est, str) else float(film_est),
+        "method": estimate.info.get("method"),
+        "film_ior_estimated": estimate.film_ior,
         "film_ior_true": film_true,
-        "substrate_ior_used": float(substrate),
+        "substrate_ior_used": film.effective_substrate_index(),
         "object_pixels": n_mask,
         "scored_pixels": int(mask.sum()),
         "coverage": (float(mask.sum()) / n_mask) if n_mask else 0.0,
@@ -392,9 +380,8 @@ def evaluate(dataset_path, estimate_path, out=None, progress=False, figures=True
 def write_evaluation(out, result: dict, figures=True) -> Path:
     """Write ``metrics.json``, ``evaluation.json``, ``rerendered.exr``, ``errors.exr`` and
     figures into ``out`` atomically."""
-    from thinfilm.generators.generate import band_channels, polarized_rgb_channels
-
-    from .dataset import atomic_output_dir, write_exr, write_json
+    from thinfilm.core.io import band_channels, polarized_rgb_channels, write_exr, write_json
+    from thinfilm.core.outputs import atomic_output_dir
 
     with atomic_output_dir(out) as tmp:
         write_json(tmp / "metrics.json", result["metrics"])
@@ -415,9 +402,9 @@ def cli_main(args) -> int:
     """``thinfilm evaluate DATASET ESTIMATE --out DIR``."""
     import sys
 
-    from thinfilm.generators.generate import set_variant
+    from thinfilm.core.variants import use_variant
 
-    set_variant()
+    use_variant()
     result = evaluate(args.dataset, args.estimate, args.out, progress=sys.stderr.isatty())
     m = result["metrics"]
 

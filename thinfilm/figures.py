@@ -121,19 +121,19 @@ def write_evaluation_figures(out_dir, result: dict) -> list:
     mask = result["mask"]
     method = result["info"].get("method") or "estimate"
     gt = ds.ground_truth
-    obj = gt["mask"] if gt else est["valid"]
+    obj = gt["mask"] if gt else est.valid
     written = []
 
     if gt:
         written.append(save_panels(out_dir / "normals.png", [
             {"image": normals_to_rgb(gt["normal"], obj), "title": "ground-truth normals"},
-            {"image": normals_to_rgb(est["normal"], est["valid"]), "title": f"estimated normals ({method})"},
+            {"image": normals_to_rgb(est.normals, est.valid), "title": f"estimated normals ({method})"},
             {"image": _masked(maps["normal_error_deg"], mask), "title": "normal error",
              "label": "degrees", "cmap": "magma", "vmin": 0.0,
              "vmax": max(_robust_max(maps["normal_error_deg"], mask), 1.0)},
         ]))
         t_gt = _masked(gt["thickness"], obj)
-        t_est = _masked(est["thickness"], est["valid"] & obj)
+        t_est = _masked(est.thickness_nm, est.valid & obj)
         lo = float(np.nanmin(t_gt)) if np.isfinite(t_gt).any() else 0.0
         hi = float(np.nanmax(t_gt)) if np.isfinite(t_gt).any() else 1.0
         if hi - lo < 20.0:
@@ -151,7 +151,7 @@ def write_evaluation_figures(out_dir, result: dict) -> list:
     white = white_xyz(ds.wavelengths_nm, ds.meta.get("illuminant", "D65"))
     white_xy = colour.XYZ_to_xy(white / white[1])
     cap, ren = lab_to_display_srgb([result["lab_captured"], result["lab_rendered"]], obj, white_xy)
-    ren[~est["valid"]] = _BACKGROUND
+    ren[~est.valid] = _BACKGROUND
     written.append(save_panels(out_dir / "appearance.png", [
         {"image": cap, "title": "captured (s-polarized)"},
         {"image": ren, "title": "re-rendered from estimate"},

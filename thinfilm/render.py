@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import UserError
+from thinfilm.core.errors import UserError
 
 __all__ = ["load_scene", "render_to_files", "cli_main"]
 
@@ -136,12 +136,9 @@ def render_to_files(scene, out_stem, spp=None, seed=0, exposure="auto"):
 
 
 def cli_main(args) -> int:
-    import mitsuba as mi
+    from thinfilm.core.variants import use_variant
 
-    if args.variant not in mi.variants():
-        raise UserError(f"--variant: unknown Mitsuba variant '{args.variant}', "
-                        f"expected one of {', '.join(mi.variants())}")
-    mi.set_variant(args.variant)
+    use_variant(args.variant)
     scene = load_scene(args.scene)
     start = time.perf_counter()
     exr, png = render_to_files(scene, args.out, spp=args.spp, seed=args.seed, exposure=args.exposure)

@@ -3,14 +3,14 @@
 import numpy as np
 import pytest
 
-from thinfilm.errors import UserError
-from thinfilm.reconstruction.polarization import (
+from thinfilm.core.errors import UserError
+from thinfilm.core.conventions import (
     aolp_deg,
     check_polarizer_angles,
     dolp,
     fit_stokes,
     malus_intensity,
-    stokes_from_dataset,
+    stokes_from_polarizer_images,
 )
 
 
@@ -76,9 +76,9 @@ def test_too_few_distinct_angles_is_a_user_error(angles):
 
 def test_stokes_from_dataset_layers():
     with pytest.raises(UserError, match="no polarizer layers"):
-        stokes_from_dataset({})
+        stokes_from_polarizer_images({})
     imgs = {a: np.full((2, 2, 3), v) for a, v in ((0, 1.0), (45, 0.5), (90, 0.0), (135, 0.5))}
-    S0, S1, S2 = stokes_from_dataset(imgs)
+    S0, S1, S2 = stokes_from_polarizer_images(imgs)
     np.testing.assert_allclose(S1, 1.0)
     np.testing.assert_allclose(S2, 0.0, atol=1e-15)
     np.testing.assert_allclose(S0, 1.0)
@@ -89,9 +89,10 @@ def test_specular_reflection_peaks_along_the_s_direction():
     at the s-direction, the image angle of n × v (perpendicular to the plane of incidence):
     φ + 90° in DESIGN.md's frame. The reference direction is computed here from vector
     geometry; the model's Stokes come from the optics core."""
+    from thinfilm.core.film import Film
     from thinfilm.reconstruction.rgb_model import FilmCamera
 
-    model = FilmCamera(np.arange(400.0, 721.0, 8.0), 1.37, 1.6)
+    model = FilmCamera(np.arange(400.0, 721.0, 8.0), Film.single(1.37, None, 1.6))
     rng = np.random.default_rng(3)
     zen = rng.uniform(5, 80, 50)
     az = rng.uniform(0, 360, 50)

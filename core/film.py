@@ -1,0 +1,325 @@
+"""Film descriptions: the one way of turning a film into numbers.
+
+A :class:`Film` is a stack of :class:`Layer` objects from the exterior down, each with a
+refractive index (a number, a dispersion model or a shipped material with its extinction k)
+and a thickness, on a substrate ``n3 + i k3``, seen from an exterior medium of real index
+``n1``. A single film is a stack of one. The capture generator, the reconstruction forward
+models, the evaluation, the Mitsuba plugin dictionaries and ``meta.json`` all use it.
+
+Index values (:func:`as_index`) may be given as
+
+* a number (``1.37``), or a string of one (``"1.37"``);
+* a complex index ``"n+ki"`` (``"1.65+0.01i"``, k >= 0 absorbing);
+* a shipped material name (``"MgF2"``; :func:`thinfilm.bsdf.material_names`), which
+  brings its own dispersion and extinction;
+* a Cauchy table ``{"cauchy": [A, B, C]}`` (λ in µm, :class:`thinfilm.bsdf.Cauchy`);
+* a table ``{"n": 1.65, "k": 0.01}``.
+
+**Effective index.** Where one number is needed for a dispersive index (the paper's
+non-dispersive formulas, warnings, the film-index error of the evaluation), it is the real
+part at :data:`REFERENCE_WAVELENGTH_NM` = 550 nm, the middle of the visible range: one
+choice, made here (:meth:`Film.effective_index`).
+
+``meta.json`` keeps the single-film keys ``film_ior``, ``substrate_ior`` and ``substrate_k``
+(readers of older datasets use them) and adds ``film``, the full description
+(:meth:`Film.to_meta`, :meth:`Film.from_meta`).
+
+Examples
+--------
+>>> film = Film.single("MgF2", 100.0, substrate_ior=1.6)     # a quarter wave at 551 nm
+>>> round(film.effective_index(), 4)
+1.3785
+>>> Rs, Rp = film.reflectances(1.0, 551.4)
+>>> round(float(Rs), 5), round(((1.6 - 1.3785 ** 2) / (1.6 + 1.3785 ** 2)) ** 2, 5)
+(0.00736, 0.00736)
+>>> Film.from_meta(film.to_meta()) == film
+True
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from .errors import UserError
+
+__all__ = [
+    "REFERENCE_WAVELENGTH_NM",
+    "Layer",
+    "Film",
+    "as_index",
+    "index_to_json",
+]
+
+#: wavelength (nm) at which a dispersive index is read when one number is needed
+REFERENCE_WAVELENGTH_NM = 550.0
+
+_COMPLEX = re.compile(r"^\s*([0-9.eE+-]+?)\s*([+-])\s*([0-9.eE+-]*)\s*[ij]\s*$")
+
+
+def as_index(value, where: str = "refractive index"):
+    """A dispersion model (``thinfilm.bsdf`` ``Constant``, ``Cauchy`` or ``Tabulated``) from
+    any of the forms of the module docstring; :class:`UserError` naming ``where`` otherwise.
+
+    Examples
+    --------
+    >>> as_index("1.65+0.01i")
+    Constant(n=1.65, k=0.01)
+    >>> as_index({"n": 2.0, "k": 0})
+    Constant(n=2.0, k=0.0)
+    """
+    from thinfilm.bsdf.materials import Cauchy, Constant, Tabulated, as_dispersion
+
+    if isinstance(value, (Constant, Cauchy, Tabulated)):
+        return value
+    disp = None
+    if isinstance(value, dict) and set(value) <= {"n", "k"} and "n" in value:
+        n, k = value["n"], value.get("k", 0.0)
+        if _is_number(n) and _is_number(k):
+            disp = Constant(float(n), float(k))
+    elif isinstance(value, str) and _COMPLEX.match(value):
+        m = _COMPLEX.match(value)
+        try:
+            k = float(m.group(3) or "1")
+            disp = Constant(float(m.group(1)), k if m.group(2) == "+" else -k)
+        except ValueError:
+            disp = None
+    elif isinstance(value, bool):
+        disp = None
+    else:
+        try:
+            disp = as_dispersion(value)
+        except (ValueError, TypeError) as e:
+            raise UserError(f"{where}: {e}") from None
+    if disp is None:
+        raise UserError(f"{where}: expected a number, 'n+ki', a material name or "
+                        f"{{cauchy = [A, B, C]}}, got {value!r}")
+    if isinstance(disp, Constant):
+        if not (math.isfinite(disp.n) and disp.n > 0):
+            raise UserError(f"{where}: the index must be a number > 0, got {disp.n:g}")
+        if not (math.isfinite(disp.k) and disp.k >= 0):
+            raise UserError(f"{where}: the extinction k must be >= 0 (k > 0 absorbs), got {disp.k:g}")
+    return disp
+
+
+def _is_number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def index_to_json(index):
+    """The JSON form of an index model (the inverse of :func:`as_index`): a number, a
+    material name, ``{"n", "k"}`` or ``{"cauchy": [A, B, C]}``."""
+    from thinfilm.bsdf.materials import Cauchy, Constant, Tabulated
+
+    if index is None:
+        return None
+    if isinstance(index, Constant):
+        return float(index.n) if index.k == 0 else {"n": float(index.n), "k": float(index.k)}
+    if isinstance(index, Tabulated):
+        return index.name
+    if isinstance(index, Cauchy):
+        return {"cauchy": [float(index.A), float(index.B), float(index.C)]}
+    raise TypeError(f"not an index model: {index!r}")
+
+
+@dataclass(frozen=True)
+class Layer:
+    """One homogeneous layer: ``index`` (a dispersion model, see :func:`as_index`; ``None``
+    where it is unknown) and ``thickness_nm`` (``None`` where it is unknown or varies over
+    the object)."""
+
+    index: object
+    thickness_nm: float | None = None
+
+    def n_k(self, wavelength_nm):
+        """Real index and extinction at ``wavelength_nm`` (arrays shaped like it)."""
+        if self.index is None:
+            raise ValueError("the layer's index is not known")
+        lam = np.asarray(wavelength_nm, dtype=np.float64)
+        return (np.asarray(self.index(lam), dtype=np.float64),
+                np.asarray(self.index.extinction(lam), dtype=np.float64))
+
+
+@dataclass(frozen=True)
+class Film:
+    """Layers from the exterior down on a substrate, lit from an exterior medium.
+
+    Attributes
+    ----------
+    layers : tuple of :class:`Layer` (one for a single film).
+    substrate : index model of the substrate (``n3 + i k3``).
+    ext_ior : real index of the exterior medium (1 for air).
+    """
+
+    layers: tuple
+    substrate: object
+    ext_ior: float = 1.0
+
+    # -- construction -------------------------------------------------------------------------
+
+    @classmethod
+    def single(cls, film_ior=1.37, thickness_nm=None, substrate_ior=1.6, substrate_k=0.0,
+               ext_ior=1.0, where: str = "film") -> "Film":
+        """A single film; indices in any form of :func:`as_index` (``substrate_k`` adds an
+        extinction to a numeric substrate index). ``film_ior = None``: the index is unknown
+        (a method that estimates it)."""
+        film = None if film_ior is None else as_index(film_ior, f"{where}: film index")
+        sub = as_index(substrate_ior, f"{where}: substrate index")
+        if substrate_k:
+            from thinfilm.bsdf.materials import Constant
+
+            if not isinstance(sub, Constant) or sub.k:
+                raise UserError(f"{where}: substrate k given twice")
+            sub = as_index({"n": sub.n, "k": substrate_k}, f"{where}: substrate k")
+        if thickness_nm is not None:
+            thickness_nm = float(thickness_nm)
+            if not (math.isfinite(thickness_nm) and thickness_nm >= 0):
+                raise UserError(f"{where}: thickness must be a number of nm >= 0, got {thickness_nm}")
+        if not (_is_number(ext_ior) and ext_ior > 0):
+            raise UserError(f"{where}: exterior index must be a number > 0, got {ext_ior!r}")
+        return cls((Layer(film, thickness_nm),), sub, float(ext_ior))
+
+    @classmethod
+    def from_meta(cls, meta: dict, where: str = "meta.json") -> "Film":
+        """The film of a ``meta.json`` (or ``estimate.json``): its ``film`` entry, else the
+        single-film keys ``film_ior``, ``substrate_ior``, ``substrate_k``."""
+        desc = meta.get("film")
+        if isinstance(desc, dict):
+            layers = desc.get("layers")
+            if not isinstance(layers, list) or not layers:
+                raise UserError(f"{where}: 'film.layers' must be a non-empty list")
+            out = []
+            for i, layer in enumerate(layers):
+                if not isinstance(layer, dict) or "ior" not in layer:
+                    raise UserError(f"{where}: 'film.layers[{i}]' must be a table with 'ior'")
+                t = layer.get("thickness_nm")
+                if t is not None and not (_is_number(t) and t >= 0):
+                    raise UserError(f"{where}: 'film.layers[{i}].thickness_nm' must be >= 0, got {t!r}")
+                out.append(Layer(as_index(layer["ior"], f"{where}: 'film.layers[{i}].ior'"),
+                                 None if t is None else float(t)))
+            sub = desc.get("substrate", {})
+            if not isinstance(sub, dict) or "ior" not in sub:
+                raise UserError(f"{where}: 'film.substrate' must be a table with 'ior'")
+            ext = desc.get("ext_ior", 1.0)
+            if not (_is_number(ext) and ext > 0):
+                raise UserError(f"{where}: 'film.ext_ior' must be a number > 0, got {ext!r}")
+            return cls(tuple(out), as_index(sub["ior"], f"{where}: 'film.substrate.ior'"), float(ext))
+        if "film_ior" not in meta:
+            raise UserError(f"{where}: no 'film_ior' (nor 'film')")
+        if "substrate_ior" not in meta:
+            raise UserError(f"{where}: no 'substrate_ior' (nor 'film')")
+        k = meta.get("substrate_k", 0.0)
+        if k is None:
+            k = 0.0
+        if not (_is_number(k) and k >= 0):
+            raise UserError(f"{where}: 'substrate_k' must be a number >= 0, got {k!r}")
+        sub = as_index(meta["substrate_ior"], f"{where}: 'substrate_ior'")
+        if k:
+            if not hasattr(sub, "k"):
+                raise UserError(f"{where}: 'substrate_k' needs a numeric 'substrate_ior'")
+            sub = as_index({"n": sub.n, "k": k}, f"{where}: 'substrate_k'")
+        return cls((Layer(as_index(meta["film_ior"], f"{where}: 'film_ior'")),), sub, 1.0)
+
+    def to_meta(self) -> dict:
+        """``meta.json`` entries: ``film`` (the whole description) and the single-film keys
+        ``film_ior`` (the top layer's index), ``substrate_ior`` and ``substrate_k``."""
+        sub = index_to_json(self.substrate)
+        sub_n = sub["n"] if isinstance(sub, dict) and "n" in sub else sub
+        return {
+            "film": {"layers": [{"ior": index_to_json(layer.index), "thickness_nm": layer.thickness_nm}
+                                for layer in self.layers],
+                     "substrate": {"ior": sub},
+                     "ext_ior": self.ext_ior},
+            "film_ior": index_to_json(self.layers[0].index) if len(self.layers) == 1 else None,
+            "substrate_ior": sub_n,
+            "substrate_k": float(getattr(self.substrate, "k", 0.0) or 0.0),
+        }
+
+    def with_index(self, film_ior, layer: int = 0) -> "Film":
+        """A copy with layer ``layer``'s index replaced (any form of :func:`as_index`)."""
+        layers = list(self.layers)
+        layers[layer] = replace(layers[layer], index=as_index(film_ior, f"film layer {layer} index"))
+        return replace(self, layers=tuple(layers))
+
+    def with_substrate(self, substrate_ior, substrate_k=0.0) -> "Film":
+        """A copy on another substrate."""
+        other = Film.single(1.0, None, substrate_ior, substrate_k)
+        return replace(self, substrate=other.substrate)
+
+    # -- numbers -------------------------------------------------------------------------------
+
+    @property
+    def is_single(self) -> bool:
+        return len(self.layers) == 1
+
+    def substrate_n_k(self, wavelength_nm):
+        """Substrate index and extinction at ``wavelength_nm``."""
+        return Layer(self.substrate).n_k(wavelength_nm)
+
+    def effective_index(self, layer: int = 0) -> float:
+        """Layer ``layer``'s real index as one number: its value at
+        :data:`REFERENCE_WAVELENGTH_NM` (see the module docstring)."""
+        return float(self.layers[layer].n_k(REFERENCE_WAVELENGTH_NM)[0])
+
+    def effective_substrate_index(self) -> float:
+        """The substrate's real index at :data:`REFERENCE_WAVELENGTH_NM`."""
+        return float(self.substrate_n_k(REFERENCE_WAVELENGTH_NM)[0])
+
+    @property
+    def absorbing_substrate(self) -> bool:
+        """Whether the substrate has k > 0 anywhere in 300-1000 nm."""
+        return bool(np.any(self.substrate_n_k(np.linspace(300.0, 1000.0, 141))[1] > 0))
+
+    def reflectances(self, cos_theta, wavelength_nm, thickness_nm=None, backend=None):
+        """Power reflectances ``(R_s, R_p)`` through the optics core.
+
+        ``thickness_nm`` overrides a single film's thickness (arrays broadcast as in
+        :func:`thinfilm.bsdf.optics.reflectances`); ``wavelength_nm`` gives the dispersion.
+        """
+        from thinfilm.bsdf import optics
+
+        if not self.is_single:
+            raise NotImplementedError("reflectances of film stacks")
+        lam = np.asarray(wavelength_nm, dtype=np.float64)
+        d = self.layers[0].thickness_nm if thickness_nm is None else thickness_nm
+        if d is None:
+            raise ValueError("the film's thickness is not known: pass thickness_nm")
+        n2, k2 = self.layers[0].n_k(lam)
+        n3, k3 = self.substrate_n_k(lam)
+        return optics.reflectances(cos_theta, lam, d, n2, n3, k3, self.ext_ior, k2)
+
+    # -- Mitsuba --------------------------------------------------------------------------------
+
+    def plugin_dict(self, thickness=None) -> dict:
+        """The ``thinfilm`` BSDF dictionary of this film for ``mi.load_dict``.
+
+        ``thickness``: a number of nm or a texture dictionary replacing a single film's
+        thickness (default: the layer's own).
+        """
+        from thinfilm.bsdf.materials import Constant
+
+        if not self.is_single:
+            raise NotImplementedError("plugin dictionaries of film stacks")
+        layer = self.layers[0]
+        t = layer.thickness_nm if thickness is None else thickness
+        if t is None:
+            raise ValueError("the film's thickness is not known: pass thickness")
+        out = {"type": "thinfilm", "thickness": t, "ext_ior": float(self.ext_ior)}
+        index = layer.index
+        if isinstance(index, Constant):
+            out["film_ior"] = float(index.n)
+            if index.k:
+                out["film_k"] = float(index.k)
+        elif hasattr(index, "name"):
+            out["film_ior"] = index.name
+        else:
+            raise NotImplementedError(f"film index {index!r} in the plugin (a number or a material name)")
+        sub = self.substrate
+        if not isinstance(sub, Constant):
+            raise NotImplementedError("dispersive substrates in the plugin")
+        out["substrate_ior"] = float(sub.n)
+        out["substrate_k"] = float(sub.k)
+        return out

@@ -1,0 +1,90 @@
+"""The built-in reconstruction methods, as records of the estimator registry.
+
+Each function here has the one estimator signature of :mod:`thinfilm.core.registry`,
+``(dataset, options) -> Estimate``, and adapts a dataset to the method's own array-level
+function. ``pyproject.toml`` points the entry point ``thinfilm.estimators: builtin`` at
+:data:`METHODS`.
+
+=========================  ========  =======  ======================================================
+name (aliases)             kind      role     what it does
+=========================  ========  =======  ======================================================
+``kobayashi2023`` (paper)  rgb       paper    the paper's Sec. 4 as published (:mod:`.rgb_paper`)
+``coherent`` (default)     rgb       default  joint coherent inversion + surface consistency
+                                              (:mod:`.rgb_coherent`)
+``kobayashi`` (paper,      spectral  paper    the paper's Sec. 6 as published (:mod:`.spectral_paper`)
+published)
+``eikonal`` (default)      spectral  default  object-level film index, per-pixel fits, eikonal
+                                              surface (:mod:`.spectral_eikonal`)
+=========================  ========  =======  ======================================================
+"""
+
+from __future__ import annotations
+
+from thinfilm.core.registry import estimator
+
+__all__ = ["METHODS", "kobayashi2023", "coherent", "kobayashi", "eikonal"]
+
+
+@estimator("kobayashi2023", kind="rgb", role="paper", aliases=("paper",), needs=("polarized_rgb",),
+           description="the paper's polarized-RGB method as published: incoherent DOP zenith, "
+                       "boundary azimuth, RGB table thickness (known film index)")
+def kobayashi2023(dataset, options):
+    from .rgb_capture import capture_from_dataset
+    from .rgb_paper import reconstruct_kobayashi2023
+
+    return reconstruct_kobayashi2023(capture_from_dataset(dataset, options), progress=options.progress)
+
+
+@estimator("coherent", kind="rgb", role="default", aliases=("default",), needs=("polarized_rgb",),
+           description="joint per-pixel inversion of the coherent thin-film model, then one "
+                       "consistent surface (known film index)")
+def coherent(dataset, options):
+    from .rgb_capture import capture_from_dataset
+    from .rgb_coherent import reconstruct_coherent
+
+    return reconstruct_coherent(capture_from_dataset(dataset, options), progress=options.progress)
+
+
+def _spectral(dataset, options, function):
+    from thinfilm.core.errors import UserError
+
+    from .spectral import reconstruct_spectral
+    from .spectral_checks import check_dielectric_substrate
+
+    meta_path = dataset.path / "meta.json"
+    film = options.film
+    check_dielectric_substrate(film, meta_path)
+    n3 = film.effective_substrate_index()
+    if not n3 > 1.0:
+        raise UserError(f"{meta_path}: substrate index must be above 1 for the spectral methods, got {n3:g} "
+                        f"(give it with --substrate-ior)")
+    pixel_size = dataset.pixel_size
+    est = reconstruct_spectral(dataset.spectral_s, dataset.wavelengths_nm, n3, mask=options.mask,
+                               method=function, pixel_size=pixel_size or 1.0)
+    est.info["coverage"] = float(est.valid.sum() / max(1, est.info["object_pixels"]))
+    est.info["height_unit"] = "pixel" if pixel_size is None else "scene"
+    return est
+
+
+@estimator("kobayashi", kind="spectral", role="paper", aliases=("paper", "published"), needs=("spectral_s",),
+           estimates_film_ior=True,
+           description="the paper's hyperspectral method as published: peak angle, characteristic "
+                       "strips, (n2, m) search")
+def kobayashi(dataset, options):
+    from .spectral_paper import reconstruct_kobayashi
+
+    return _spectral(dataset, options, reconstruct_kobayashi)
+
+
+@estimator("eikonal", kind="spectral", role="default", aliases=("default",), needs=("spectral_s",),
+           estimates_film_ior=True,
+           description="one film index for the object, per-pixel spectrum fits, eikonal surface "
+                       "with a confidence-weighted refinement")
+def eikonal(dataset, options):
+    from .spectral_eikonal import reconstruct_eikonal
+
+    return _spectral(dataset, options, reconstruct_eikonal)
+
+
+#: the built-in methods (the ``builtin`` entry point of the ``thinfilm.estimators`` group)
+METHODS = [kobayashi2023, coherent, kobayashi, eikonal]

@@ -1,0 +1,161 @@
+"""The default polarized-RGB method: joint coherent inversion, then surface consistency.
+
+* inverts the coherent thin-film model (:class:`~.rgb_model.FilmCamera`) per pixel, zenith,
+  azimuth (mod 180°) and thickness jointly from all K × 3 polarizer × RGB values
+  (:mod:`.rgb_invert`: a k-d tree search over (zenith, thickness) then Levenberg–Marquardt,
+  both on a bicubic spline of the model tabulated once from the optics core,
+  :class:`~.rgb_model.FilmTable`);
+* makes the normal field consistent with one surface: the 180° ambiguity is seeded at the
+  occluding boundary as in the paper, then the normals are integrated to a height map on the
+  mask (confidence-weighted Poisson with a small curvature penalty, :mod:`.surface`), and
+  every pixel is re-fitted with a Gaussian prior towards the surface's normal (which fixes
+  the sign of the azimuth, and the zenith where polarization is weak, near normal incidence)
+  and towards the local median thickness (which fixes pixels that fell into a neighbouring
+  thickness basin);
+* exports the final height field as ``surface.ply``.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from thinfilm.core.conventions import angles_to_normals
+from thinfilm.core.io import Estimate
+from thinfilm.core.progress import progress_bar
+
+from .masks import resolve_azimuth
+from .rgb_capture import RGBCapture
+
+__all__ = ["reconstruct_coherent"]
+
+
+def _normal_information(info, n_xy):
+    """Information (precision) on the normal's image-plane part (a, b) from the fit's
+    Gauss–Newton matrix in (v1, v2, d), with d marginalized out. ``v = (a² - b², 2ab)``."""
+    H = info
+    Hvv = H[:, :2, :2]
+    Hvd = H[:, :2, 2]
+    Hdd = np.maximum(H[:, 2, 2], 1e-300)
+    Iv = Hvv - Hvd[:, :, None] * Hvd[:, None, :] / Hdd[:, None, None]
+    a, b = n_xy[:, 0], n_xy[:, 1]
+    J = 2.0 * np.stack([np.stack([a, -b], -1), np.stack([b, a], -1)], axis=-2)   # dv/d(a, b)
+    return np.einsum("nki,nkl,nlj->nij", J, Iv, J)
+
+
+def _local_median(values, mask, size: int = 5):
+    """Median of ``values`` over the mask pixels of each ``size`` × ``size`` window."""
+    import warnings
+
+    v = np.where(mask, values, np.nan)
+    pad = size // 2
+    H, W = v.shape
+    vp = np.pad(v, pad, constant_values=np.nan)
+    win = np.lib.stride_tricks.sliding_window_view(vp, (size, size))[:H, :W].reshape(H, W, -1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)   # all-NaN windows outside the mask
+        med = np.nanmedian(win, axis=-1)
+    return np.where(np.isfinite(med), med, values)
+
+
+def reconstruct_coherent(capture: RGBCapture, progress: bool = False, rounds: int = 1,
+                         normal_prior_sigma: float = 0.01, thickness_prior_sigma_nm: float = 15.0,
+                         smoothness: float = 2.0) -> Estimate:
+    """Joint per-pixel inversion of the coherent model, then surface consistency.
+
+    Parameters
+    ----------
+    capture : RGBCapture
+    rounds : integrate → re-fit rounds.
+    normal_prior_sigma : σ of the prior on each normal's image-plane part around the
+        integrated surface's normal (unitless; 0.01 ≈ 0.6° near normal incidence). Where the
+        polarization data are confident (zenith beyond ~20°) they outweigh it.
+    thickness_prior_sigma_nm : σ of the prior on thickness around its 5 × 5 local median.
+    smoothness : curvature penalty of the height integration (relative to the mean weight).
+    """
+    from .rgb_invert import PixelPrior, build_table, invert_pixels, refine_pixels
+    from .surface import height_to_normals, integrate_normals
+
+    timings = {}
+    mask = capture.mask
+    angles = capture.angles_deg
+    K = len(angles)
+    I_obs = capture.stack()[mask]                       # (N, K, 3)
+    N = I_obs.shape[0]
+    model = capture.model
+    rng_nm = capture.thickness_range_nm
+
+    bar = progress_bar(2 + rounds, "coherent", progress)
+    t = time.perf_counter()
+    table = build_table(model, rng_nm)
+    timings["table"] = time.perf_counter() - t
+    t = time.perf_counter()
+    fit = invert_pixels(model, I_obs, angles, rng_nm, table=table)
+    timings["per_pixel"] = time.perf_counter() - t
+    bar.update(2)
+
+    t = time.perf_counter()
+    # Noise level of the data, from the residuals (robust; dof = 3K - 3).
+    sigma = float(np.sqrt(np.median(fit.cost) / max(3 * K - 3, 1)))
+    sigma = max(sigma, 1e-12)
+    zen = np.full(mask.shape, np.nan)
+    az = np.full(mask.shape, np.nan)
+    thick = np.full(mask.shape, np.nan)
+    zen[mask], az[mask], thick[mask] = fit.zenith_deg, fit.azimuth_deg, fit.thickness_nm
+    n_xy = np.sin(np.radians(fit.zenith_deg))[:, None] * np.stack(
+        [np.cos(np.radians(fit.azimuth_deg)), np.sin(np.radians(fit.azimuth_deg))], axis=-1)
+    info_n = _normal_information(fit.info, n_xy) / sigma ** 2
+    w_n = np.full(mask.shape, 0.0)
+    w_n[mask] = 0.5 * np.trace(info_n, axis1=1, axis2=2)
+    az = resolve_azimuth(az, zen, mask)
+    timings["azimuth"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    height = None
+    cost = fit.cost
+    for _ in range(rounds):
+        normals = angles_to_normals(zen, np.nan_to_num(az))
+        nz = np.clip(normals[..., 2], 0.0, 1.0)
+        weights = np.where(mask, w_n * nz ** 4, 0.0)
+        height = integrate_normals(normals, mask, weights, smoothness=smoothness)
+        n_surf = height_to_normals(height, mask)
+        d_med = _local_median(thick, mask)
+        prior = PixelPrior(
+            normal_xy=n_surf[mask][:, :2],
+            normal_weight=np.full(N, sigma / normal_prior_sigma),
+            thickness_nm=d_med[mask],
+            thickness_weight=np.full(N, sigma / thickness_prior_sigma_nm))
+        # Start from the current estimate, on the surface's side; thickness outliers restart
+        # from the local median.
+        d0 = thick[mask]
+        far = np.abs(d0 - d_med[mask]) > 3 * thickness_prior_sigma_nm
+        d0 = np.where(far, d_med[mask], d0)
+        refit = refine_pixels(table, I_obs, angles, zen[mask], d0, az[mask], prior=prior)
+        phi = np.radians(refit.azimuth_deg)
+        dot = n_surf[mask][:, 0] * np.cos(phi) + n_surf[mask][:, 1] * np.sin(phi)
+        az_new = np.mod(refit.azimuth_deg + np.where(dot < 0, 180.0, 0.0), 360.0)
+        zen[mask], az[mask], thick[mask] = refit.zenith_deg, az_new, refit.thickness_nm
+        cost = refit.data_cost
+        bar.update(1)
+    bar.close()
+    # The exported surface: every final normal is now good (data plus surface prior), so they
+    # are weighted alike except towards the silhouette (slopes clipped), with a light
+    # curvature penalty — the heavy one above only serves to carry the surface across regions
+    # where polarization says little.
+    normals = angles_to_normals(zen, np.nan_to_num(az))
+    nz = np.clip(normals[..., 2], 0.0, 1.0)
+    height = integrate_normals(normals, mask, np.where(mask, nz ** 2, 0.0), smoothness=0.05)
+    timings["surface"] = time.perf_counter() - t
+
+    # Pixels whose final fit to the data (priors left out) is far worse than the noise are
+    # reported as invalid.
+    chi2 = cost / (sigma ** 2 * max(3 * K - 3, 1))
+    ok = np.isfinite(chi2) & (chi2 < 50.0)
+    valid = np.zeros(mask.shape, dtype=bool)
+    valid[mask] = ok
+    info = {**capture.info, "timings_s": timings, "noise_sigma": sigma,
+            "notes": "coherent Airy model inverted jointly per pixel (zenith, azimuth, thickness), "
+                     "then integrated to one surface and re-fitted with surface and thickness priors"}
+    return Estimate(normals, np.where(mask, thick, 0.0), valid, capture.info["film_ior"],
+                    capture.info["substrate_ior"], height * capture.pixel_size, capture.pixel_size, info)

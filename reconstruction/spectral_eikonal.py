@@ -1,0 +1,162 @@
+"""The default spectral method: the paper's physics, solved at the object level.
+
+1. peaks as in the paper give a first angle where they exist;
+2. ``n2`` once for the object: the (n2, m) search pooled over well-conditioned pixels
+   (25°–65°), then a joint Gauss-Newton over the shared ``n2`` and every pixel's (θ, d);
+3. every pixel's (θ, d) by Levenberg-Marquardt on the whole spectrum through the optics
+   core (pixels without a peak are started from their nearest pixel with one, and from a
+   coarse grid where that fit stays poor), with the variance of θ; for the thickness,
+   pixels whose fit stays far above the noise (a wrong peak, a wrong order) and the
+   pixels without a peak are refitted from the nearest well-fitted pixel;
+4. the surface as a whole: ``|∇z| = tan θ`` by fast marching from the occluding boundary,
+   then a least-squares refinement weighted by each pixel's angle precision (the
+   near-normal region, where the peak reflectance is flat in θ, is carried by the
+   surroundings; there a measured slope, a magnitude, is biased upwards by its noise, so
+   the target is the slope whose folded-normal mean is the measurement); normals from
+   the height field, with θ blended by precision;
+5. thickness at the final angle: the linear θ-d coupling of the fit near the fitted angle,
+   a refit where the angle moved further.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from thinfilm.core.io import Estimate
+
+from . import eikonal as _eik
+from . import spectral_model as _sm
+from .spectral_checks import check_peak_assumption, peaks_of
+from .spectral_fit import _fit_no_peak, _levenberg_marquardt, _sigma_theta, _thickness_at, estimate_film_ior, \
+    initial_thickness
+
+__all__ = ["reconstruct_eikonal"]
+
+
+def _unfold_magnitude(observed, sigma):
+    """The ``μ >= 0`` whose folded normal ``|N(μ, σ²)|`` has mean ``observed`` (0 below the mean
+    of ``|N(0, σ²)|``, σ sqrt(2/π)); ``observed`` itself beyond 8 σ, where the fold is nil."""
+    from scipy.special import erf
+
+    t = np.linspace(0.0, 8.0, 1601)
+    mean = np.sqrt(2.0 / np.pi) * np.exp(-0.5 * t * t) + t * erf(t / np.sqrt(2.0))
+    x = np.asarray(observed, dtype=np.float64)
+    s = np.maximum(np.asarray(sigma, dtype=np.float64), 1e-300)
+    with np.errstate(invalid="ignore", over="ignore"):
+        r = np.nan_to_num(x / s, nan=0.0, posinf=np.inf)
+        return np.where(r >= mean[-1], x, s * np.interp(np.minimum(r, mean[-1]), mean, t, left=0.0))
+
+
+def reconstruct_eikonal(cube, wavelengths_nm, substrate_ior, mask, smoothness=10.0, angle_floor_deg=0.2,
+                        condition_scale=2.0, noise_scale=1.0, misfit=3.0):
+    """The default method (see the module docstring)."""
+    wl = np.asarray(wavelengths_nm, dtype=np.float64)
+    n3 = float(substrate_ior)
+    t = {}
+    t0 = time.perf_counter()
+    spectra, pk, stats = peaks_of(cube, mask, wl)
+    check_peak_assumption(spectra, n3, pk.noise)
+    peak_val = np.where(np.isfinite(pk.mean_value), pk.mean_value, pk.value)
+    theta_peak = _sm.angle_from_peak(peak_val, n3)
+    t["peaks"] = time.perf_counter() - t0
+
+    # 1. the film index, once for the object
+    t0 = time.perf_counter()
+    use = np.isfinite(theta_peak) & (theta_peak > np.radians(25)) & (theta_peak < np.radians(65))
+    n2, n2_info = estimate_film_ior(spectra[use], theta_peak[use], pk.wavelength_nm[use], n3, wl)
+    t["film_ior"] = time.perf_counter() - t0
+
+    # 2. (θ, d) per pixel. The capture is S0 + sqrt(S1² + S2²); its noise bias is modelled
+    # with the S1/S2 noise of a four-angle rotating polarizer, about the band noise of the
+    # s spectrum where the light is barely polarized (where the bias matters)
+    t0 = time.perf_counter()
+    stokes_noise = noise_scale * pk.noise
+    has = np.isfinite(theta_peak)
+    d0 = np.full(theta_peak.shape, np.nan)
+    if has.any():
+        d0[has] = initial_thickness(spectra[has], theta_peak[has], pk.wavelength_nm[has], n2, n3, wl)
+    th0 = np.where(has, theta_peak, 0.0)
+    # pixels with a peak first; they seed the others
+    th_fit = np.zeros_like(th0)
+    d_fit = np.zeros_like(th0)
+    neq = np.zeros((th0.size, 6))  # normal equations at the fit, [a11 a12 a22 g1 g2 sse]
+    if has.any():
+        th_fit[has], d_fit[has], neq[has] = _levenberg_marquardt(
+            spectra[has], th0[has], d0[has], n2, n3, wl, stokes_noise=stokes_noise[has])
+    none = ~has
+    if none.any():
+        th_fit[none], d_fit[none], neq[none] = _fit_no_peak(
+            spectra, mask, has, th_fit, d_fit, n2, n3, wl, stokes_noise, misfit=misfit)
+    # a pixel whose fit from its peak stays far above the noise read a wrong peak (one of
+    # several, or a noise bump), and so a wrong order and angle (thickness errors of a
+    # quarter to half a micron), and pixels without a peak started from such a pixel inherit
+    # its order. For the thickness, those pixels are refitted from the nearest well-fitted
+    # pixel (and the coarse grid), keeping the better of the two fits. The surface keeps the
+    # first fits, where a large residual already gives the angle a low weight: feeding the
+    # refitted angles to the surface solve as well changed the mean normal error of 48 px
+    # hemispheres and cylinders by up to ±0.3°, either way depending on the seed
+    th_surf, neq_surf = th_fit.copy(), neq.copy()
+    poor = has & (neq[:, 5] > misfit * wl.size * np.maximum(stokes_noise, 1e-6) ** 2)
+    if poor.any() and (has & ~poor).any():
+        redo = poor | none
+        th_r, d_r, neq_r = _fit_no_peak(spectra, mask, has & ~poor, th_fit, d_fit, n2, n3, wl, stokes_noise,
+                                        misfit=misfit, which=redo)
+        better = neq_r[:, 5] < neq[redo, 5]
+        idx = np.nonzero(redo)[0][better]
+        th_fit[idx], d_fit[idx], neq[idx] = th_r[better], d_r[better], neq_r[better]
+    stats["refit_poor_peak"] = int(poor.sum())
+    sig = _sigma_theta(neq_surf, wl.size)
+    t["fit_angle_thickness"] = time.perf_counter() - t0
+
+    # 3. the surface as a whole
+    t0 = time.perf_counter()
+    theta_img = np.zeros(mask.shape)
+    theta_img[mask] = th_surf
+    # precision of each pixel's angle: the fit's own, and the conditioning of the peak
+    # reflectance in θ (flat at normal incidence) at the pixel's noise level, which also covers
+    # the noise bias of S0 + sqrt(S1² + S2²) where the light is barely polarized
+    h = np.radians(0.05)
+    slope_R = np.abs(_sm.peak_reflectance(th_surf + h, n3) - _sm.peak_reflectance(np.maximum(th_surf - h, 0), n3)) \
+        / (th_surf + h - np.maximum(th_surf - h, 0))
+    sig_cond = condition_scale * pk.noise / np.maximum(slope_R, 1e-12)
+    sig_img = np.full(mask.shape, np.inf)
+    sig_img[mask] = np.maximum(np.hypot(sig, sig_cond), np.radians(angle_floor_deg))
+    slope = np.tan(theta_img)
+    sig_slope = sig_img / np.cos(np.minimum(theta_img, np.radians(89.0))) ** 2
+    weight = np.where(mask, 1.0 / sig_slope ** 2, 0.0)
+    phi, seed_kind = _eik.seed_level(theta_img, mask)
+    z0 = _eik.fast_marching_height(slope, mask, phi)
+    t["fast_marching"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    # the refinement's target slope: a measured angle is a magnitude, so near normal incidence
+    # (σ comparable to the slope) its noise only ever adds to it; the target is the slope
+    # whose folded-normal mean is the measurement
+    slope_t = np.where(mask, _unfold_magnitude(slope, np.where(mask, sig_slope, 1.0)), 0.0)
+    z = _eik.refine_height(z0, slope_t, weight, mask, smoothness=smoothness)
+    p, q = _eik.height_gradient(z, mask)
+    theta_z = np.arctan(np.hypot(p, q))
+    # blend: the pixel's own angle where it is precise, the surface's elsewhere
+    sig_z = np.radians(1.0)
+    w_d = 1.0 / sig_img ** 2
+    w_z = 1.0 / sig_z ** 2
+    theta_fin = (w_d * theta_img + w_z * theta_z) / (w_d + w_z)
+    g = np.hypot(p, q)
+    ux = np.where(g > 0, p / np.where(g > 0, g, 1), 0.0)
+    uy = np.where(g > 0, q / np.where(g > 0, g, 1), 0.0)
+    st = np.tan(np.minimum(theta_fin, np.radians(89.9)))
+    normals = _eik.gradient_to_normals(st * ux, st * uy)
+    t["refine_surface"] = time.perf_counter() - t0
+
+    # 4. thickness at the final angle
+    t0 = time.perf_counter()
+    d_fin = _thickness_at(spectra, theta_fin[mask], th_fit, d_fit, neq, n2, n3, wl, stokes_noise)
+    t["thickness"] = time.perf_counter() - t0
+    thickness = np.full(mask.shape, np.nan)
+    thickness[mask] = d_fin
+    valid = mask & np.isfinite(thickness) & np.isfinite(z)
+    info = {"peaks": stats, "timings_s": t, **n2_info,
+            "seeds": seed_kind, "smoothness": smoothness}
+    return Estimate(normals=normals, thickness_nm=thickness, valid=valid, film_ior=float(n2),
+                    substrate_ior=float(substrate_ior), height=z, info=info)

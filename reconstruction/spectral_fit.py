@@ -1,0 +1,317 @@
+"""Per-pixel fits of the spectral methods through the optics core (:mod:`.spectral_model`).
+
+* the integer-order thickness candidates (the paper's Eqs. 28–29),
+  :func:`initial_thickness`;
+* :func:`fit_angle_thickness`: Levenberg-Marquardt of (θ, d), or d alone, to the whole
+  spectrum (the shared solver of :mod:`.lm`), with the variance of θ;
+* :func:`estimate_film_ior`: one film index for the object (the (n2, m) search pooled over
+  pixels, then a joint Gauss-Newton over the shared ``n2`` and every pixel's (θ, d));
+* the fits of pixels without a peak (:func:`_fit_no_peak`) and the thickness at a new
+  angle (:func:`_thickness_at`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import ndimage
+
+from thinfilm.core.errors import UserError
+
+from . import spectral_model as _sm
+from .lm import levenberg_marquardt
+
+__all__ = ["MAX_THICKNESS_NM", "fit_angle_thickness", "initial_thickness", "estimate_film_ior"]
+
+MAX_THICKNESS_NM = 1000.0
+
+
+def _film_ior_grid(substrate_ior):
+    # 1.00, 1.01, ... up to (not including) n3
+    k = int(np.floor((substrate_ior - 1.0) / 0.01 + 1e-9))
+    g = np.round(1.0 + 0.01 * np.arange(k + 1), 2)
+    return g[g < substrate_ior - 1e-9]
+
+
+def _order_candidates(theta, peak_wl, n2_values, max_thickness_nm=MAX_THICKNESS_NM):
+    """Eq. 29 thickness candidates ``d = m λ / (2 sqrt(n2² - sin² θ))`` for every n2 and m >= 1
+    with ``d < max_thickness_nm``: (N, K) thickness and film index, NaN-padded."""
+    s2 = np.sin(theta) ** 2
+    n2 = np.asarray(n2_values, dtype=np.float64)
+    q2 = np.sqrt(np.maximum(n2[None, :] ** 2 - s2[:, None], 1e-12))  # (N, G)
+    unit = peak_wl[:, None] / (2.0 * q2)  # d for m = 1
+    with np.errstate(invalid="ignore"):
+        m_max = np.nan_to_num(np.ceil(max_thickness_nm / unit) - 1, nan=0).astype(int)
+    M = max(1, int(np.max(m_max, initial=1)))
+    m = np.arange(1, M + 1)
+    d = unit[:, :, None] * m[None, None, :]  # (N, G, M)
+    d = np.where(m[None, None, :] <= m_max[:, :, None], d, np.nan)
+    n2b = np.broadcast_to(n2[None, :, None], d.shape)
+    return d.reshape(d.shape[0], -1), n2b.reshape(d.shape[0], -1), m
+
+
+def fit_angle_thickness(spectra, theta0, thickness0, film_ior, substrate_ior, wavelengths_nm,
+                        iterations=12, fit_theta=True, theta_max_deg=89.5, stokes_noise=None):
+    """Levenberg-Marquardt per pixel of (θ, d) — or d alone — to the whole spectrum.
+
+    Parameters
+    ----------
+    spectra : (N, B) measured s reflectance.
+    theta0, thickness0 : (N,) starting values (radians, nm).
+    film_ior, substrate_ior : float.
+    fit_theta : bool
+        False: θ stays at ``theta0`` and only the thickness is fitted.
+    stokes_noise : (N,) array_like, optional
+        Per-pixel noise of the measured S1, S2: the model then includes the noise bias of
+        ``S0 + sqrt(S1² + S2²)`` (see :func:`thinfilm.reconstruction.spectral_model.rs_spectra`).
+
+    Returns
+    -------
+    theta, thickness, sse, sigma_theta : (N,) arrays; ``sigma_theta`` is the standard deviation
+    of θ from the Gauss-Newton covariance with the residual variance of the pixel (inf where the
+    spectrum does not constrain θ).
+    """
+    S = np.asarray(spectra, dtype=np.float64)
+    th, d, cur = _levenberg_marquardt(S, theta0, thickness0, film_ior, substrate_ior, wavelengths_nm,
+                                      iterations, fit_theta, theta_max_deg, stokes_noise)
+    return th, d, cur[:, 5], _sigma_theta(cur, S.shape[1], fit_theta)
+
+
+def _sigma_theta(cur, bands, fit_theta=True):
+    """Standard deviation of θ from the normal equations ``cur`` ([a11 a12 a22 g1 g2 sse])."""
+    n = cur.shape[0]
+    if not fit_theta:
+        return np.full(n, np.inf)
+    var = cur[:, 5] / max(bands - 2, 1)
+    det = cur[:, 0] * cur[:, 2] - cur[:, 1] ** 2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cov_tt = np.where(det > 0, cur[:, 2] / det, np.inf)
+        sigma = np.sqrt(var * cov_tt)
+    return np.where(np.isfinite(sigma), sigma, np.inf)
+
+
+def _levenberg_marquardt(S, theta0, thickness0, film_ior, substrate_ior, wavelengths_nm,
+                         iterations=12, fit_theta=True, theta_max_deg=89.5, stokes_noise=None):
+    """The iterations of :func:`fit_angle_thickness` (the shared solver of :mod:`.lm`): final
+    (θ, d) and, per pixel, the normal equations at that point, ``[a11 a12 a22 g1 g2 sse]``
+    (θ first, then d; ``g`` = Jᵀr with J the model's Jacobian)."""
+    wl = np.asarray(wavelengths_nm, dtype=np.float64)
+    S = np.asarray(S, dtype=np.float64)
+    n = S.shape[0]
+    th_max = np.radians(theta_max_deg)
+    noise = None if stokes_noise is None else np.broadcast_to(np.asarray(stokes_noise, float), (n,))
+    jac = ("theta", "thickness") if fit_theta else ("thickness",)
+    dot = lambda x, y: np.einsum("ij,ij->i", x, y)  # noqa: E731
+    theta_fixed = np.array(theta0, dtype=np.float64)
+
+    def normal_equations(x, idx):
+        th_ = x[:, 0] if fit_theta else theta_fixed[idx]
+        d_ = x[:, -1]
+        nz = None if noise is None else noise[idx]
+        out = _sm.rs_spectra(th_, d_, film_ior, substrate_ior, wl, jac=jac, stokes_noise=nz)
+        r = S[idx] - out[0]
+        Jd = out[-1]
+        sse = dot(r, r)
+        if fit_theta:
+            Jt = out[1]
+            a11, a12, a22 = dot(Jt, Jt), dot(Jt, Jd), dot(Jd, Jd)
+            H = np.stack([np.stack([a11, a12], -1), np.stack([a12, a22], -1)], -2)
+            g1, g2 = dot(Jt, r), dot(Jd, r)
+            # the residual's Jacobian is minus the model's
+            return H, -np.stack([g1, g2], -1), sse, None
+        return dot(Jd, Jd)[:, None, None], -dot(Jd, r)[:, None], sse, None
+
+    def project(x):
+        if fit_theta:
+            x[:, 0] = np.clip(np.abs(x[:, 0]), 0.0, th_max)
+        x[:, -1] = np.maximum(x[:, -1], 0.0)
+        return x
+
+    # steps of d within a quarter period at the shortest wavelength (no order jumps)
+    x0 = np.stack([theta_fixed, np.array(thickness0, dtype=np.float64)], -1) if fit_theta else \
+        np.array(thickness0, dtype=np.float64)[:, None]
+    fit = levenberg_marquardt(
+        x0, normal_equations, iterations, project=project,
+        max_step=[0.2, 40.0] if fit_theta else [40.0], step_tol=[1e-5, 1e-2] if fit_theta else [1e-2],
+        lam0=1e-3, lam_down=1.0 / 3.0, lam_up=5.0, floor_rel=0.0, floor_abs=1e-18)
+    H, g = fit.H, -fit.g
+    if fit_theta:
+        th, d = fit.x[:, 0], fit.x[:, 1]
+        cur = np.stack([H[:, 0, 0], H[:, 0, 1], H[:, 1, 1], g[:, 0], g[:, 1], fit.cost], -1)
+    else:
+        th, d = theta_fixed, fit.x[:, 0]
+        z = np.zeros(n)
+        cur = np.stack([z, z, H[:, 0, 0], z, g[:, 0], fit.cost], -1)
+    return th, d, cur
+
+
+def initial_thickness(spectra, theta_rad, peak_wl_nm, film_ior, substrate_ior, wavelengths_nm,
+                      max_thickness_nm=1.5 * MAX_THICKNESS_NM):
+    """Starting thickness per pixel for a known film index: the best order m of Eq. 29.
+
+    Returns (N,) thickness in nm (the candidate ``m λ_peak / (2 sqrt(n2² - sin² θ))`` whose
+    spectrum fits best).
+    """
+    dc, n2c, _ = _order_candidates(np.asarray(theta_rad, float), np.asarray(peak_wl_nm, float),
+                                   [film_ior], max_thickness_nm)
+    e = _sm.grid_sse(spectra, theta_rad, dc, n2c, substrate_ior, wavelengths_nm)
+    return dc[np.arange(dc.shape[0]), np.argmin(e, axis=1)]
+
+
+def _joint_film_ior(S, th, d, n2, n3, wl, iterations=15):
+    """Gauss-Newton over one shared n2 and every pixel's (θ, d) (Schur complement on n2)."""
+    th, d = th.copy(), d.copy()
+    n2_lo, n2_hi = 1.0, n3 - 1e-3
+    sse_total = np.inf
+    for _ in range(iterations):
+        R, Jt, Jd, Jn = _sm.rs_spectra(th, d, n2, n3, wl, jac=("theta", "thickness", "film_ior"))
+        r = S - R
+        e = float(np.sum(r * r))
+        dot = lambda x, y: np.einsum("ij,ij->i", x, y)  # noqa: E731
+        a11, a12, a22 = dot(Jt, Jt) + 1e-12, dot(Jt, Jd), dot(Jd, Jd) + 1e-12
+        det = a11 * a22 - a12 * a12
+        c1, c2, en = dot(Jt, Jn), dot(Jd, Jn), dot(Jn, Jn)
+        g1, g2, hn = dot(Jt, r), dot(Jd, r), dot(Jn, r)
+        # A^{-1} c and A^{-1} g
+        ac1, ac2 = (a22 * c1 - a12 * c2) / det, (a11 * c2 - a12 * c1) / det
+        ag1, ag2 = (a22 * g1 - a12 * g2) / det, (a11 * g2 - a12 * g1) / det
+        S_n = float(np.sum(en - (c1 * ac1 + c2 * ac2)))
+        rhs = float(np.sum(hn - (c1 * ag1 + c2 * ag2)))
+        dn = rhs / S_n if S_n > 0 else 0.0
+        dn = float(np.clip(dn, -0.05, 0.05))
+        dt = ag1 - ac1 * dn
+        dd = ag2 - ac2 * dn
+        step = 1.0
+        for _ in range(6):
+            n2_new = float(np.clip(n2 + step * dn, n2_lo, n2_hi))
+            th_new = np.abs(th + step * np.clip(dt, -0.2, 0.2))
+            d_new = np.maximum(d + step * np.clip(dd, -40, 40), 0.0)
+            R2 = _sm.rs_spectra(th_new, d_new, n2_new, n3, wl)
+            e2 = float(np.sum((S - R2) ** 2))
+            if e2 < e:
+                break
+            step *= 0.5
+        else:
+            break
+        converged = abs(n2_new - n2) < 1e-6
+        th, d, n2, sse_total = th_new, d_new, n2_new, e2
+        if converged:
+            break
+    return n2, th, d, sse_total
+
+
+def estimate_film_ior(spectra, theta_rad, peak_wl_nm, substrate_ior, wavelengths_nm,
+                      max_pixels=600):
+    """One film index for the object, pooled over pixels at well-conditioned angles.
+
+    The paper's (n2, m) search (Eqs. 28–30) is summed over the pooled pixels to pick the grid
+    value and each pixel's order; a joint Gauss-Newton over the shared ``n2`` and every pixel's
+    (θ, d) then refines it continuously.
+
+    Parameters
+    ----------
+    spectra : (N, B) spectra of candidate pixels (with a peak).
+    theta_rad, peak_wl_nm : (N,) first angles (from the peak) and peak wavelengths.
+
+    Returns
+    -------
+    film_ior : float
+    info : dict (pixels used, grid value)
+    """
+    S = np.asarray(spectra, dtype=np.float64)
+    th = np.asarray(theta_rad, dtype=np.float64)
+    lam = np.asarray(peak_wl_nm, dtype=np.float64)
+    n = S.shape[0]
+    if n == 0:
+        raise UserError("spectral_s: no pixel shows a constructive-interference peak at a usable "
+                        "angle (25°-65°), so the film index cannot be estimated")
+    if n > max_pixels:
+        sel = np.linspace(0, n - 1, max_pixels).round().astype(int)
+        S, th, lam = S[sel], th[sel], lam[sel]
+    grid = _film_ior_grid(substrate_ior)
+    d, n2, _ = _order_candidates(th, lam, grid)
+    sse = _sm.grid_sse(S, th, d, n2, substrate_ior, wavelengths_nm)
+    G = grid.size
+    sse_g = sse.reshape(S.shape[0], G, -1)
+    best_m = np.argmin(sse_g, axis=2)  # (N, G)
+    per_grid = np.min(sse_g, axis=2)
+    total = np.sum(np.where(np.isfinite(per_grid), per_grid, 0.0), axis=0)
+    g_best = int(np.argmin(total))
+    n2_grid = float(grid[g_best])
+    rows = np.arange(S.shape[0])
+    d0 = d.reshape(S.shape[0], G, -1)[rows, g_best, best_m[:, g_best]]
+    ok = np.isfinite(d0)
+    n2_fit, _, _, _ = _joint_film_ior(S[ok], th[ok], d0[ok], n2_grid, substrate_ior,
+                                      np.asarray(wavelengths_nm, dtype=np.float64))
+    return n2_fit, {"film_ior_grid": n2_grid, "film_ior_pixels": int(ok.sum())}
+
+
+def _init_no_peak(S, n2, n3, wl, d_guess):
+    """Coarse (θ, d) grid for pixels without a peak: θ in 3° steps, d ± 60 nm (15 nm steps)
+    around a guess; Levenberg-Marquardt refines from there."""
+    thetas = np.radians(np.arange(0.0, 89.0, 3.0))
+    offs = np.arange(-60.0, 60.1, 15.0)
+    n = S.shape[0]
+    best_t = np.zeros(n)
+    best_d = np.array(d_guess, dtype=np.float64)
+    best_e = np.full(n, np.inf)
+    dd = np.maximum(best_d[:, None] + offs[None, :], 0.0)
+    for t_ in thetas:
+        e = _sm.grid_sse(S, np.full(n, t_), dd, np.full(dd.shape, n2), n3, wl)
+        k = np.argmin(e, axis=1)
+        ek = e[np.arange(n), k]
+        better = ek < best_e
+        best_e = np.where(better, ek, best_e)
+        best_t = np.where(better, t_, best_t)
+        best_d = np.where(better, dd[np.arange(n), k], best_d)
+    return best_t, best_d
+
+
+def _fit_no_peak(spectra, mask, has, th_fit, d_fit, n2, n3, wl, stokes_noise, misfit=3.0, which=None):
+    """(θ, d) of the object pixels without a peak (``~has``, or the pixels ``which``), by
+    Levenberg-Marquardt started from the nearest pixel with a peak (the surface and the film
+    are continuous); pixels whose fit stays ``misfit`` times above the noise's expected
+    residual are restarted from the coarse grid of :func:`_init_no_peak` and keep the better
+    fit.
+
+    Returns θ, d and the normal equations (as :func:`_levenberg_marquardt`) of those pixels.
+    """
+    none = ~has if which is None else np.asarray(which, dtype=bool)
+    S = spectra[none]
+    nz = stokes_noise[none]
+    if has.any():
+        img = np.full(mask.shape, -1, dtype=np.int64)
+        img[mask] = np.where(has, np.arange(has.size), -1)
+        _, (ir, ic) = ndimage.distance_transform_edt(img < 0, return_indices=True)
+        src = img[ir, ic][mask][none]
+        t_start, d_start = th_fit[src], d_fit[src]
+    else:
+        t_start, d_start = _init_no_peak(S, n2, n3, wl, np.full(S.shape[0], 400.0))
+    th, d, cur = _levenberg_marquardt(S, t_start, d_start, n2, n3, wl, stokes_noise=nz)
+    bad = np.nonzero(cur[:, 5] > misfit * wl.size * np.maximum(nz, 1e-6) ** 2)[0]
+    if has.any() and bad.size:
+        tg, dg = _init_no_peak(S[bad], n2, n3, wl, d_start[bad])
+        th_b, d_b, cur_b = _levenberg_marquardt(S[bad], tg, dg, n2, n3, wl, stokes_noise=nz[bad])
+        better = cur_b[:, 5] < cur[bad, 5]
+        th[bad[better]], d[bad[better]], cur[bad[better]] = th_b[better], d_b[better], cur_b[better]
+    return th, d, cur
+
+
+def _thickness_at(spectra, theta, th_fit, d_fit, neq, n2, n3, wl, stokes_noise, linear_deg=0.25):
+    """Thickness per pixel at new angles ``theta`` (fitted at ``th_fit``, ``d_fit``).
+
+    Near the fitted angle the best thickness follows it linearly, ``d(θ) = d_fit - a12/a22 Δθ``
+    from the normal equations ``neq`` of the (θ, d) fit (the second-order term is below 0.01 nm
+    within ``linear_deg``); pixels whose angle moved further are refitted (d alone) through
+    the optics core, from the shifted value where that shift is small and from ``d_fit``
+    otherwise.
+    """
+    dth = theta - th_fit
+    with np.errstate(divide="ignore", invalid="ignore"):
+        shift = np.nan_to_num(np.where(neq[:, 2] > 0, -neq[:, 1] / neq[:, 2] * dth, 0.0))
+    d = np.where(np.abs(shift) <= 10.0, np.maximum(d_fit + shift, 0.0), d_fit)
+    redo = np.nonzero(np.abs(dth) > np.radians(linear_deg))[0]
+    if redo.size:
+        _, d[redo], _ = _levenberg_marquardt(spectra[redo], theta[redo], d[redo], n2, n3, wl,
+                                             iterations=6, fit_theta=False,
+                                             stokes_noise=stokes_noise[redo])
+    return d

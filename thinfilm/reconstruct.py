@@ -1,0 +1,114 @@
+"""``thinfilm reconstruct rgb|spectral``: run a registered estimator on a dataset folder.
+
+The method comes from the estimator registry (:mod:`thinfilm.core.registry`): a built-in
+name or alias, a third-party method of the ``thinfilm.estimators`` entry points, or
+``package.module:function``. The dataset is read for the parts the method needs and uses,
+the film is taken from ``meta.json`` with ``--film-ior`` / ``--substrate-ior`` applied,
+and the estimate folder is written atomically.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+__all__ = ["film_for", "reconstruct", "cli_main"]
+
+#: thickness ranges the RGB table search can cover (nm)
+MAX_THICKNESS_RANGE_NM = 20000.0
+
+
+def film_for(dataset, method, film_ior=None, substrate_ior=None):
+    """The film an estimator is given: ``meta.json``'s (its ``film`` entry, else
+    ``film_ior`` / ``substrate_ior`` / ``substrate_k``) with the command line's indices
+    applied. A method that estimates the film index may do without one."""
+    from thinfilm.core.errors import UserError
+    from thinfilm.core.film import Film
+
+    meta = dataset.meta
+    where = str(dataset.path / "meta.json")
+    if isinstance(meta.get("film"), dict):
+        film = Film.from_meta(meta, where)
+        if film_ior is not None:
+            film = film.with_index(film_ior)
+        if substrate_ior is not None:
+            film = film.with_substrate(substrate_ior)
+        return film
+    if film_ior is None:
+        film_ior = meta.get("film_ior")
+        if film_ior is None and not method.estimates_film_ior:
+            raise UserError(f"{where}: no 'film_ior'; pass the index with --film-ior")
+        where_n2 = f"{where}: 'film_ior'"
+    else:
+        where_n2 = "--film-ior"
+    k = 0.0
+    if substrate_ior is None:
+        substrate_ior = meta.get("substrate_ior")
+        if substrate_ior is None:
+            raise UserError(f"{where}: no 'substrate_ior'; pass --substrate-ior")
+        k = meta.get("substrate_k", 0.0) or 0.0
+        if isinstance(k, bool) or not isinstance(k, (int, float)) or not (math.isfinite(k) and k >= 0):
+            raise UserError(f"{where}: 'substrate_k' must be a number >= 0, got {k!r}")
+        where_n3 = f"{where}: 'substrate_ior'"
+    else:
+        where_n3 = "--substrate-ior"
+    from thinfilm.core.film import as_index
+
+    n2 = None if film_ior is None else as_index(film_ior, where_n2)
+    n3 = as_index(substrate_ior, where_n3)
+    return Film.single(n2, None, n3, k, where=where)
+
+
+def reconstruct(kind: str, dataset_path, method=None, film_ior=None, substrate_ior=None,
+                thickness_range_nm=None, mask_path=None, progress: bool = False):
+    """Run method ``method`` (a name, alias or ``package.module:function``; None: the
+    default) of ``kind`` on a dataset folder. Returns the :class:`~thinfilm.core.io.Estimate`
+    and the :class:`~thinfilm.core.registry.Method`."""
+    from thinfilm.core import registry
+    from thinfilm.core.errors import UserError
+    from thinfilm.core.io import read_dataset, read_mask_file
+
+    m = registry.get(kind, method)
+    if thickness_range_nm is not None:
+        lo, hi = (float(v) for v in thickness_range_nm)
+        if not (math.isfinite(lo) and math.isfinite(hi)) or lo >= hi or lo < 0:
+            raise UserError(f"--thickness-range: expected 0 <= MIN < MAX in nm, got {lo:g} {hi:g}")
+        if hi > MAX_THICKNESS_RANGE_NM:
+            raise UserError(f"--thickness-range: MAX must be at most {MAX_THICKNESS_RANGE_NM:g} nm, got {hi:g}")
+        thickness_range_nm = (lo, hi)
+    t0 = time.perf_counter()
+    ds = read_dataset(dataset_path, need=m.needs, optional=m.uses)
+    film = film_for(ds, m, film_ior, substrate_ior)
+    mask = read_mask_file(mask_path, ds.shape) if mask_path is not None else None
+    t_read = time.perf_counter() - t0
+    options = registry.Options(film=film, mask=mask, thickness_range_nm=thickness_range_nm, progress=progress)
+    est = registry.run(m, ds, options)
+    est.info["timings_s"] = {"read": t_read, **est.info.get("timings_s", {})}
+    est.info["timings_s"]["total"] = time.perf_counter() - t0
+    return est, m
+
+
+def cli_main(args) -> int:
+    """``thinfilm reconstruct KIND DATASET --out DIR [--method NAME] [...]``."""
+    import sys
+
+    from thinfilm.core.io import write_estimate, write_json
+    from thinfilm.core.outputs import atomic_output_dir, check_output_dir
+
+    t0 = time.perf_counter()
+    out = check_output_dir(args.out)
+    est, method = reconstruct(args.kind, args.dataset, getattr(args, "method", None), getattr(args, "film_ior", None),
+                      getattr(args, "substrate_ior", None), getattr(args, "thickness_range", None),
+                      getattr(args, "mask", None), progress=sys.stderr.isatty())
+    t = time.perf_counter()
+    with atomic_output_dir(out) as tmp:
+        write_estimate(tmp, est)
+        # estimate.json again, last, so that it holds the time of the writing too
+        est.info["timings_s"]["write"] = time.perf_counter() - t
+        est.info["timings_s"]["wall"] = time.perf_counter() - t0
+        write_json(tmp / "estimate.json", est.json())
+    n2 = est.film_ior
+    n2_text = f", film index {n2:.4f}" if method.estimates_film_ior and isinstance(n2, float) else ""
+    print(f"wrote {out} (method {est.info['method']}{n2_text}, {int(est.valid.sum())} pixels, "
+          f"{est.info['timings_s']['wall']:.1f} s)")
+    return 0
