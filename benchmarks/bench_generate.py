@@ -29,13 +29,13 @@ def main(argv=None) -> int:
     p.add_argument("--repeat", type=int, default=2, help="runs per preset; the best is reported")
     args = p.parse_args(argv)
 
-    from thinfilm.generators.generate import generate_dataset, set_variant
+    from thinfilm.core.variants import use_variant
+    from thinfilm.generators.generate import generate_dataset
     from thinfilm.generators.render import passband_quadrature, render_stokes_cube
     from thinfilm.generators.scene import build_scene_dict
-    from thinfilm.generators.spec import load_spec, wavelength_grid
+    from thinfilm.generators.spec import load_spec
 
-    set_variant()
-    import mitsuba as mi
+    mi = use_variant()
 
     presets = ["hemisphere", "cylinder", "pyramid"] if args.preset == "all" else [args.preset]
     print(f"cores: {os.cpu_count()}, resolution {args.resolution}, mitsuba {mi.__version__}")
@@ -48,15 +48,14 @@ def main(argv=None) -> int:
             best = None
             for i in range(args.repeat):
                 t0 = time.perf_counter()
-                generate_dataset(spec, tmp / f"{preset}{i}", progress=False)
+                t = generate_dataset(spec, tmp / f"{preset}{i}", progress=False)
                 total = time.perf_counter() - t0
-                t = dict(generate_dataset.last_timings_s)
                 if best is None or total < best[0]:
                     best = (total, t)
                 shutil.rmtree(tmp / f"{preset}{i}")
             total, t = best
-            wl = wavelength_grid(spec["rig"])
-            sub, _ = passband_quadrature(wl, spec["rig"]["band_fwhm_nm"], spec["rig"]["passband"])
+            wl = spec.rig.wavelengths
+            sub, _ = passband_quadrature(wl, spec.rig.band_fwhm_nm, spec.rig.passband)
             # baseline: point-sampled bands, same scene
             scene = mi.load_dict(build_scene_dict(spec)[0])
             t0 = time.perf_counter()

@@ -6,8 +6,8 @@ Usage::
                                              [--work /tmp/bench_rgb] [--repeat 1]
 
 For each preset a dataset is generated with the preset's default camera noise (reused when
-already present in ``--work``), the paper's and the default method of
-``thinfilm.reconstruction.rgb.METHODS`` are run, and the estimate is scored against the ground
+already present in ``--work``), the paper's and the default RGB method of the estimator
+registry are run (on the dataset read once), and the estimate is scored against the ground
 truth over the object mask: coverage, normal error (mean, p95), zenith error, thickness error
 (mean, p95). Speed: wall time in seconds (the best of ``--repeat`` runs), the process's CPU
 time (all threads; on a busy machine it shows the work done better than the wall time), and
@@ -53,7 +53,11 @@ def ensure_dataset(preset, resolution, work: Path) -> Path:
 
 
 def main(argv=None):
-    from thinfilm.reconstruction import rgb
+    from thinfilm.core import registry
+    from thinfilm.core.io import read_dataset
+    from thinfilm.reconstruct import film_for
+
+    paper, default = registry.get("rgb", "paper"), registry.get("rgb")
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--resolution", type=int, default=128)
@@ -67,16 +71,17 @@ def main(argv=None):
     rows = []
     for preset in args.presets:
         ds = ensure_dataset(preset, args.resolution, work)
-        capture, _ = rgb.capture_from_dataset(ds)
+        dataset = read_dataset(ds, need=("polarized_rgb",), optional=())
+        options = registry.Options(film=film_for(dataset, default))
         wall = {}
-        for method in (rgb.PAPER_METHOD, rgb.DEFAULT_METHOD):
+        for method in (paper, default):
             best = (np.inf, np.inf)
             for _ in range(max(1, args.repeat)):
                 t0, c0 = time.perf_counter(), time.process_time()
-                result = rgb.reconstruct(capture, method)
+                result = registry.run(method, dataset, options)
                 best = min(best, (time.perf_counter() - t0, time.process_time() - c0))
-            wall[method] = best[0]
-            rows.append((preset, method, score(ds, result), best[0], best[1], best[0] / wall[rgb.PAPER_METHOD]))
+            wall[method.name] = best[0]
+            rows.append((preset, method.name, score(ds, result), best[0], best[1], best[0] / wall[paper.name]))
 
     print(f"\nRGB reconstruction, {args.resolution}x{args.resolution}, default camera noise")
     print(f"{'preset':<11}{'method':<15}{'cover':>7}{'normal':>8}{'p95':>7}{'zenith':>8}"
@@ -85,17 +90,17 @@ def main(argv=None):
         print(f"{preset:<11}{method:<15}{s['coverage']:>7.3f}{s['normal_mean_deg']:>8.2f}"
               f"{s['normal_p95_deg']:>7.2f}{s['zenith_mean_deg']:>8.2f}{s['thickness_mean_nm']:>10.2f}"
               f"{s['thickness_p95_nm']:>7.1f}{t:>9.2f}{cpu:>8.2f}{ratio:>9.2f}")
-    print(f"speed, wall time default ({rgb.DEFAULT_METHOD}) / paper ({rgb.PAPER_METHOD}):")
+    print(f"speed, wall time default ({default.name}) / paper ({paper.name}):")
     for preset in args.presets:
         t = {m: w for p, m, _, w, _, _ in rows if p == preset}
-        print(f"  {preset:<11}{t[rgb.DEFAULT_METHOD]:7.2f} s / {t[rgb.PAPER_METHOD]:7.2f} s = "
-              f"{t[rgb.DEFAULT_METHOD] / t[rgb.PAPER_METHOD]:.2f}")
+        print(f"  {preset:<11}{t[default.name]:7.2f} s / {t[paper.name]:7.2f} s = "
+              f"{t[default.name] / t[paper.name]:.2f}")
     print("targets (default method): coverage >= 0.90, normal mean <= 3 deg, p95 <= 8 deg, "
           "thickness mean <= 10 nm")
     ok = all(s["coverage"] >= TARGETS["coverage"] and s["normal_mean_deg"] <= TARGETS["normal_mean_deg"]
              and s["normal_p95_deg"] <= TARGETS["normal_p95_deg"]
              and s["thickness_mean_nm"] <= TARGETS["thickness_mean_nm"]
-             for _, method, s, _, _, _ in rows if method == rgb.DEFAULT_METHOD)
+             for _, method, s, _, _, _ in rows if method == default.name)
     print("default method meets the targets:", "yes" if ok else "NO")
     return 0 if ok else 1
 

@@ -43,6 +43,8 @@ __all__ = [
     "software_versions",
     "read_estimate",
     "write_estimate",
+    "write_evaluation_files",
+    "read_metrics",
     "height_to_mesh",
     "read_json",
     "read_mask_file",
@@ -569,3 +571,28 @@ def read_estimate(path) -> Estimate:
     return Estimate(normals=normals, thickness_nm=ch["thickness"], valid=ch["valid"] > 0.5,
                     film_ior=info.pop("film_ior", None), substrate_ior=info.pop("substrate_ior", None),
                     info=info)
+
+
+# -- evaluation folders -------------------------------------------------------------------------
+
+def write_evaluation_files(folder, metrics: dict, info: dict, rerendered_polarized_rgb: dict, rerendered_spectral_s,
+                           error_maps: dict, mask) -> Path:
+    """Write the files of an evaluation folder into ``folder`` (which exists): ``metrics.json``,
+    ``evaluation.json``, ``rerendered.exr`` (the re-rendered captures: ``pol000.R`` …,
+    ``spectral_s.band000`` …) and ``errors.exr`` (error maps, NaN stored as 0, and ``mask``)."""
+    folder = Path(folder)
+    write_json(folder / "metrics.json", metrics)
+    write_json(folder / "evaluation.json", info)
+    write_exr(folder / "rerendered.exr", {**polarized_rgb_channels(rerendered_polarized_rgb),
+                                          **band_channels(np.asarray(rerendered_spectral_s), "spectral_s.")})
+    write_exr(folder / "errors.exr", {**{k: np.nan_to_num(v, nan=0.0) for k, v in error_maps.items()},
+                                      "mask": np.asarray(mask).astype(np.float32)})
+    return folder
+
+
+def read_metrics(folder) -> dict:
+    """``metrics.json`` of an evaluation folder."""
+    metrics = read_json(Path(folder) / "metrics.json", missing="not a thinfilm evaluation folder")
+    if not isinstance(metrics, dict):
+        raise UserError(f"{Path(folder) / 'metrics.json'}: expected a JSON object")
+    return metrics

@@ -9,7 +9,6 @@ Used by the fast tests; the end-to-end test uses the real generator.
 
 from __future__ import annotations
 
-import json
 
 import numpy as np
 

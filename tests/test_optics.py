@@ -1,6 +1,5 @@
 """The optics core against independent references: tmm, Mitsuba's Fresnel/Mueller code, published indices."""
 
-import doctest
 
 import numpy as np
 import pytest

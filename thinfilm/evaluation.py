@@ -380,17 +380,13 @@ def evaluate(dataset_path, estimate_path, out=None, progress=False, figures=True
 def write_evaluation(out, result: dict, figures=True) -> Path:
     """Write ``metrics.json``, ``evaluation.json``, ``rerendered.exr``, ``errors.exr`` and
     figures into ``out`` atomically."""
-    from thinfilm.core.io import band_channels, polarized_rgb_channels, write_exr, write_json
+    from thinfilm.core.io import write_evaluation_files
     from thinfilm.core.outputs import atomic_output_dir
 
     with atomic_output_dir(out) as tmp:
-        write_json(tmp / "metrics.json", result["metrics"])
-        write_json(tmp / "evaluation.json", result["info"])
         rendered = result["rendered"]
-        write_exr(tmp / "rerendered.exr", {**polarized_rgb_channels(rendered["polarized_rgb"]),
-                                           **band_channels(rendered["spectral_s"], "spectral_s.")})
-        write_exr(tmp / "errors.exr", {**{k: np.nan_to_num(v, nan=0.0) for k, v in result["maps"].items()},
-                                       "mask": result["mask"].astype(np.float32)})
+        write_evaluation_files(tmp, result["metrics"], result["info"], rendered["polarized_rgb"],
+                               rendered["spectral_s"], result["maps"], result["mask"])
         if figures:
             from . import figures as fig
 
