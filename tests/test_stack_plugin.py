@@ -117,6 +117,8 @@ def test_one_layer_stack_equals_single_film_bit_for_bit(use_variant):
     film_k = 0 changes nothing against a lossless film."""
     for variant in ("llvm_ad_spectral_polarized", "llvm_ad_mono_polarized", "llvm_ad_spectral"):
         mi = use_variant(variant)
+        import drjit as dr
+
         si = _random_interactions(mi, 64, seed=11)[0]
         ctx = mi.BSDFContext()
         results = []
@@ -126,6 +128,7 @@ def test_one_layer_stack_equals_single_film_bit_for_bit(use_variant):
             plugin = mi.load_dict({"type": "thinfilm", "substrate_ior": 0.27, "substrate_k": 3.4,
                                    "wavelength": 480.0, **bsdf})
             value = plugin.sample(ctx, si, 0.5, mi.Point2f(0.5, 0.5))[1]
+            dr.eval(value)
             results.append(np.array(value) if not mi.is_polarized else
                            np.array([[np.array(value[i, j]) for j in range(4)] for i in range(4)]))
         assert np.abs(results[0]).max() > 0.1
