@@ -327,6 +327,11 @@ def film_amplitudes(
         NumPy complex arrays for NumPy input, :class:`Complex` pairs for
         Dr.Jit input. Same sign convention as ``tmm.coh_tmm(...)['r']`` and
         Mitsuba's ``fresnel_polarized``.
+
+    See Also
+    --------
+    stack_amplitudes : any number of films, and transmission. This closed form is its
+        one-layer case, operation for operation (the two agree bit for bit).
     """
     ops = _ops_for(cos_theta1, wavelength_nm, thickness_nm, film_ior, substrate_ior, substrate_k)
     numpy_in = ops is _NUMPY
