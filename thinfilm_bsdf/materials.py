@@ -7,6 +7,11 @@ Named materials ship as CSV tables in ``thinfilm_bsdf/data/`` (columns
 ``wavelength_nm, n, k`` on a uniform grid); each file's header names the source
 of its numbers. :func:`material_names` lists them.
 
+Film stacks are written as text, ``"INDEX:THICKNESS_NM, ..."`` from the exterior
+down (:func:`parse_stack`), INDEX a number, a complex index ``n+ki`` or a material
+name; each :class:`Layer` gives the ``(n, k, thickness_nm)`` triples that
+:func:`thinfilm.bsdf.optics.stack_amplitudes` takes.
+
 Examples
 --------
 >>> m = named_material("MgF2")
@@ -14,19 +19,35 @@ Examples
 1.3785
 >>> round(float(Cauchy(1.5, 0.004)(500.0)), 4)
 1.516
+>>> stack = parse_stack("MgF2:95, 2.1:62, 1.65+0.01i:80")
+>>> [(layer.material.name if isinstance(layer.material, Tabulated) else layer.material.n,
+...   layer.thickness_nm) for layer in stack]
+[('MgF2', 95.0), (2.1, 62.0), (1.65, 80.0)]
+>>> stack[2].at(550.0)
+(1.65, 0.01, 80.0)
 """
 
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from importlib import resources
 
 import numpy as np
 
 from .optics import _NUMPY, _ops_for
 
-__all__ = ["Constant", "Cauchy", "Tabulated", "named_material", "material_names", "as_dispersion"]
+__all__ = [
+    "Constant",
+    "Cauchy",
+    "Tabulated",
+    "Layer",
+    "named_material",
+    "material_names",
+    "as_dispersion",
+    "parse_index",
+    "parse_stack",
+]
 
 
 @dataclass(frozen=True)
@@ -66,8 +87,8 @@ class Tabulated:
     name: str
     start_nm: float
     step_nm: float
-    n_values: tuple
-    k_values: tuple
+    n_values: tuple = field(repr=False)
+    k_values: tuple = field(repr=False)
 
     def _interp(self, values, wavelength_nm):
         ops = _ops_for(wavelength_nm)
@@ -128,16 +149,118 @@ def named_material(name: str) -> Tabulated:
 
 
 def as_dispersion(value):
-    """A dispersion model from a number, a material name, a model, or a ``{"cauchy": [A, B, C]}`` table."""
+    """A dispersion model from a number, a complex index ``"n+ki"``, a material name, a model,
+    or a ``{"cauchy": [A, B, C]}`` table."""
     if isinstance(value, (Constant, Cauchy, Tabulated)):
         return value
     if isinstance(value, str):
-        try:
-            return Constant(float(value))
-        except ValueError:
-            return named_material(value)
+        return parse_index(value)
     if isinstance(value, dict) and "cauchy" in value:
         return Cauchy(*[float(c) for c in value["cauchy"]])
     if isinstance(value, (int, float, np.floating, np.integer)) and not isinstance(value, bool):
         return Constant(float(value))
     raise ValueError(f"refractive index {value!r}: expected a number, a material name or {{cauchy = [A, B, C]}}")
+
+
+def parse_index(text: str):
+    """A refractive index written as text: a number (``"1.5"``), a complex index ``n+ki``
+    (``"1.65+0.01i"``, ``k >= 0`` absorbing; ``j`` works too) or a material name (``"MgF2"``).
+
+    Returns a :class:`Constant` (with its ``k``) or the material's :class:`Tabulated`;
+    raises ``ValueError`` with one sentence naming the text otherwise.
+
+    Examples
+    --------
+    >>> parse_index("1.65+0.01i")
+    Constant(n=1.65, k=0.01)
+    >>> parse_index("mgf2").name
+    'MgF2'
+    """
+    raw = str(text).strip()
+    compact = raw.replace(" ", "")
+    value = None
+    try:
+        value = complex(float(compact))
+    except ValueError:
+        if compact[-1:].lower() in ("i", "j") and any(ch.isdigit() for ch in compact):
+            try:
+                value = complex(compact[:-1] + "j")
+            except ValueError:
+                raise ValueError(f"refractive index {raw!r}: expected a number, n+ki "
+                                 f"(e.g. 1.65+0.01i) or a material name") from None
+    if value is None:
+        return named_material(raw)
+    if not (value.real > 0 and np.isfinite(value.real)):
+        raise ValueError(f"refractive index {raw!r}: the real part must be a finite number > 0")
+    if not (value.imag >= 0 and np.isfinite(value.imag)):
+        raise ValueError(f"refractive index {raw!r}: the extinction k must be finite and >= 0")
+    return Constant(float(value.real), float(value.imag))
+
+
+@dataclass(frozen=True)
+class Layer:
+    """One film of a stack: its material (a dispersion model with ``extinction``) and thickness."""
+
+    material: Constant | Cauchy | Tabulated
+    thickness_nm: float
+
+    def at(self, wavelength_nm):
+        """``(n, k, thickness_nm)`` at the given wavelengths, as :func:`optics.stack_amplitudes`
+        takes them (a constant index gives plain floats)."""
+        if isinstance(self.material, Constant):
+            return self.material.n, self.material.k, self.thickness_nm
+        return (self.material(wavelength_nm), self.material.extinction(wavelength_nm),
+                self.thickness_nm)
+
+
+def parse_stack(stack) -> list[Layer]:
+    """The layers of a film stack, from the exterior down.
+
+    ``stack`` is text, ``"INDEX:THICKNESS_NM, INDEX:THICKNESS_NM, ..."`` with INDEX as
+    in :func:`parse_index` and the thickness in nm (``>= 0``), e.g.
+    ``"MgF2:95, 2.1:62, 1.65+0.01i:80"``; or a sequence of ``(index, thickness_nm)``
+    pairs whose index is a number, a complex number, text or a dispersion model.
+    Raises ``ValueError`` with one sentence naming the offending item.
+    """
+    if isinstance(stack, str):
+        items = [item.strip() for item in stack.split(",")]
+        if not any(items):
+            raise ValueError("stack is empty: expected 'INDEX:THICKNESS_NM, ...' "
+                             "(e.g. 'MgF2:95, 2.1:62')")
+        pairs = []
+        for number, item in enumerate(items, start=1):
+            if not item:
+                raise ValueError(f"stack {stack!r}: item {number} is empty (a stray comma?)")
+            if item.count(":") != 1:
+                raise ValueError(f"stack item {item!r}: expected INDEX:THICKNESS_NM "
+                                 f"(e.g. 'MgF2:95' or '1.65+0.01i:80')")
+            pairs.append((repr(item), *(part.strip() for part in item.split(":"))))
+    else:
+        try:
+            pairs = [(repr(tuple(pair)), *pair) for pair in stack]
+        except (TypeError, ValueError):
+            raise ValueError(f"stack {stack!r}: expected text 'INDEX:THICKNESS_NM, ...' or "
+                             f"a sequence of (index, thickness_nm) pairs") from None
+        if not pairs:
+            raise ValueError("stack is empty: expected at least one (index, thickness_nm) pair")
+    layers = []
+    for item, index, thickness in pairs:
+        try:
+            if isinstance(index, complex):
+                material = parse_index(f"{index.real!r}+{index.imag!r}i")
+            elif isinstance(index, (Constant, Cauchy, Tabulated)):
+                material = index
+            else:
+                material = parse_index(str(index))
+        except ValueError as e:
+            raise ValueError(f"stack item {item}: {e}") from None
+        try:
+            d = float(thickness)
+        except (TypeError, ValueError):
+            raise ValueError(f"stack item {item}: the thickness {thickness!r} must be a "
+                             f"number of nm") from None
+        if not (d >= 0 and np.isfinite(d)):
+            raise ValueError(f"stack item {item}: the thickness must be finite and >= 0 nm, "
+                             f"got {d}")
+        layers.append(Layer(material, d))
+    return layers

@@ -1,4 +1,4 @@
-"""Mitsuba 3 plugin ``thinfilm``: a smooth surface coated with one thin film.
+"""Mitsuba 3 plugin ``thinfilm``: a smooth surface coated with one thin film or a stack of films.
 
 .. list-table::
    :header-rows: 1
@@ -13,40 +13,64 @@
      - 400
      - Film thickness in nm. A texture (e.g. ``bitmap`` with ``raw: True``) makes it vary over
        the surface; it is read with ``eval_1``.
-     - yes, differentiable
+     - ``thickness``, differentiable
    * - ``film_ior``
-     - float, spectrum or material name
+     - float, spectrum, ``n+ki`` text or material name
      - 1.37
-     - Film refractive index n2. A name (``"MgF2"``, ``"PET"``, ``"BK7"``, ``"SiO2"``) uses the
-       dispersion table shipped in ``thinfilm_bsdf/data``.
-     - yes (float or spectrum), differentiable
+     - Film refractive index n2. A name (``"MgF2"``, ``"PET"``, ``"BK7"``, ``"SiO2"``, ``"H2O"``,
+       ``"Au"``) uses the dispersion table shipped in ``thinfilm_bsdf/data``, extinction
+       included.
+     - ``film_ior`` (float or spectrum), differentiable
+   * - ``film_k``
+     - float
+     - 0
+     - Film extinction k2 (``n2 + i k2``, absorbing for k2 > 0). Not with a named material or
+       ``n+ki`` text, which bring their own k.
+     - ``film_k``, differentiable
+   * - ``stack``
+     - string
+     - (none)
+     - A stack of films instead of one: ``"INDEX:THICKNESS_NM, ..."`` from the exterior down,
+       INDEX a number, ``n+ki`` (e.g. ``1.65+0.01i``) or a material name, e.g.
+       ``"MgF2:95, 2.1:62, 1.65+0.01i:80"``. Not together with ``thickness``, ``film_ior`` or
+       ``film_k``.
+     - ``layer_0.thickness``, ``layer_1.thickness``, … (nm, differentiable); ``layer_<i>.ior``
+       and ``layer_<i>.k`` for layers with a numeric index (differentiable)
+   * - ``thickness_scale``
+     - float or texture
+     - 1
+     - Multiplies the thickness of every layer (of the single film too), e.g. a texture of
+       relative thickness over the surface of a coated part.
+     - ``thickness_scale``, differentiable
    * - ``substrate_ior``
      - float
      - 1.6
      - Substrate index n3 (real part).
-     - yes
+     - ``substrate_ior``, differentiable
    * - ``substrate_k``
      - float
      - 0
      - Substrate extinction k3 (> 0 for metals).
-     - yes
+     - ``substrate_k``, differentiable
    * - ``ext_ior``
      - float
      - 1.0
      - Exterior index n1.
-     - yes
+     - ``ext_ior``
    * - ``wavelength``
      - float
      - 550
      - Wavelength in nm used in ``mono`` variants (which carry none). Changing it through
        ``mi.traverse`` reuses the compiled kernel.
-     - yes, not differentiable
+     - ``wavelength``, not differentiable
 
 Reflection is a delta lobe (mirror direction); transmission is not modelled (the film sits
-on an opaque or index-matched substrate). In polarized variants the BSDF returns the full
-Mueller matrix of the film (both amplitudes and their phase difference), rotated into
-Mitsuba's Stokes bases in the same way as Mitsuba's ``conductor``. With ``thickness = 0`` it
-equals ``conductor`` with ``eta = substrate_ior, k = substrate_k``.
+on an opaque or index-matched substrate; see ``thinfilm_sheet`` for free-standing films).
+In polarized variants the BSDF returns the full Mueller matrix of the film (both amplitudes
+and their phase difference), rotated into Mitsuba's Stokes bases in the same way as
+Mitsuba's ``conductor``. With ``thickness = 0`` it equals ``conductor`` with
+``eta = substrate_ior, k = substrate_k``. The optics are
+:func:`thinfilm.bsdf.optics.stack_amplitudes` (one film is the one-layer stack).
 
 Works in the ``scalar_spectral[_polarized]``, ``llvm_ad_spectral[_polarized]``,
 ``llvm_ad_mono[_polarized]`` and ``cuda_*`` variants.
@@ -58,6 +82,8 @@ Example
 >>> import thinfilm.bsdf; thinfilm.bsdf.register()          # doctest: +SKIP
 >>> bsdf = mi.load_dict({"type": "thinfilm", "thickness": 400.0,
 ...                      "film_ior": "MgF2", "substrate_ior": 1.6})  # doctest: +SKIP
+>>> ar = mi.load_dict({"type": "thinfilm", "stack": "MgF2:99.6, 2.1:65.5",
+...                    "substrate_ior": 1.52})              # doctest: +SKIP
 """
 
 from __future__ import annotations
@@ -68,22 +94,22 @@ import drjit as dr
 import mitsuba as mi
 
 from . import optics
-from .materials import Constant, as_dispersion
+from .materials import Constant, as_dispersion, parse_stack
 
 __all__ = ["bsdf_class", "register", "variant_class"]
 
 
-def _fail(message: str):
-    raise ValueError(f"thinfilm: {message}")
+def _fail(message: str, plugin: str = "thinfilm"):
+    raise ValueError(f"{plugin}: {message}")
 
 
-def _positive_float(props, name, default, allow_zero=False):
+def _positive_float(props, name, default, allow_zero=False, plugin="thinfilm"):
     value = props.get(name, default) if name in props else default
     if not isinstance(value, numbers.Real):
-        _fail(f"parameter '{name}' must be a number, got {type(value).__name__}")
+        _fail(f"parameter '{name}' must be a number, got {type(value).__name__}", plugin)
     value = float(value)
     if value < 0 or (value == 0 and not allow_zero) or value != value:
-        _fail(f"parameter '{name}' must be {'>= 0' if allow_zero else '> 0'}, got {value}")
+        _fail(f"parameter '{name}' must be {'>= 0' if allow_zero else '> 0'}, got {value}", plugin)
     return value
 
 
@@ -99,6 +125,222 @@ def _texture(props, name):
     return None
 
 
+class _Film:
+    """The film of a plugin: one film (``thickness``, ``film_ior``, ``film_k``) or a ``stack``,
+    with ``thickness_scale``. Reads the properties, exposes and checks the parameters, and
+    gives the layers ``(n, k, thickness_nm)`` at a surface point for the optics core.
+
+    Shared by the ``thinfilm`` and ``thinfilm_sheet`` plugins (``plugin`` names the one
+    in error messages).
+    """
+
+    def __init__(self, props, plugin="thinfilm", default_ior=1.37, default_thickness=400.0):
+        self.plugin = plugin
+        self.scale_tex = _texture(props, "thickness_scale")
+        self.scale = mi.Float(1.0 if self.scale_tex is not None else
+                              _positive_float(props, "thickness_scale", 1.0, allow_zero=True))
+        self.stack = None
+        if "stack" in props:
+            given = [name for name in ("thickness", "film_ior", "film_k") if name in props]
+            if given:
+                _fail(f"parameter 'stack' cannot be combined with '{given[0]}' "
+                      f"(write the film as a stack layer instead)", plugin)
+            text = props.get("stack")
+            if not isinstance(text, str):
+                _fail(f"parameter 'stack' must be a string 'INDEX:THICKNESS_NM, ...', "
+                      f"got {type(text).__name__}", plugin)
+            try:
+                layers = parse_stack(text)
+            except ValueError as e:
+                _fail(f"parameter 'stack': {e}", plugin)
+            self.stack = [_StackLayer(layer) for layer in layers]
+            return
+
+        # Thickness: number or texture.
+        self.thickness_tex = _texture(props, "thickness")
+        if self.thickness_tex is not None:
+            self.thickness = mi.Float(0.0)
+        else:
+            self.thickness = mi.Float(_positive_float(props, "thickness", default_thickness,
+                                                      allow_zero=True, plugin=plugin))
+
+        # Film index: number, spectrum texture, n+ki text or material name; extinction.
+        self.ior_tex = _texture(props, "film_ior")
+        self.dispersion = None
+        k = None
+        raw = props.get("film_ior", default_ior) if "film_ior" in props else default_ior
+        if self.ior_tex is not None:
+            self.ior = mi.Float(0.0)
+        elif isinstance(raw, str):
+            try:
+                disp = as_dispersion(raw)
+            except ValueError as e:
+                _fail(f"parameter 'film_ior': {e}", plugin)
+            if isinstance(disp, Constant):
+                self.ior = mi.Float(disp.n)
+                k = disp.k
+            else:
+                self.dispersion = disp
+                self.ior = mi.Float(0.0)
+            if "film_k" in props and (self.dispersion is not None or k):
+                _fail(f"parameter 'film_k' cannot be combined with film_ior {raw!r}, which "
+                      f"brings its own extinction", plugin)
+        else:
+            self.ior = mi.Float(_positive_float(props, "film_ior", default_ior, plugin=plugin))
+        if k is None:
+            k = _positive_float(props, "film_k", 0.0, allow_zero=True, plugin=plugin)
+        self.k = mi.Float(k)
+
+    # -- parameters ---------------------------------------------------------
+
+    def opaque(self):
+        """The scalar parameters, to be made opaque (kernel inputs, not literals)."""
+        values = [self.scale]
+        if self.stack is None:
+            values += [self.thickness, self.ior, self.k]
+        else:
+            for layer in self.stack:
+                values += [layer.thickness, layer.ior, layer.k]
+        return values
+
+    def traverse(self, callback):
+        diff = mi.ParamFlags.Differentiable
+        callback.put("thickness_scale", self.scale_tex if self.scale_tex is not None else self.scale,
+                     diff)
+        if self.stack is not None:
+            for i, layer in enumerate(self.stack):
+                callback.put(f"layer_{i}.thickness", layer.thickness, diff)
+                if layer.dispersion is None:
+                    callback.put(f"layer_{i}.ior", layer.ior, diff)
+                    callback.put(f"layer_{i}.k", layer.k, diff)
+            return
+        callback.put("thickness", self.thickness_tex if self.thickness_tex is not None
+                     else self.thickness, diff)
+        if self.ior_tex is not None:
+            callback.put("film_ior", self.ior_tex, diff)
+        elif self.dispersion is None:
+            callback.put("film_ior", self.ior, diff)
+        if self.dispersion is None:
+            callback.put("film_k", self.k, diff)
+
+    def checks(self):
+        """``(name, value, allow_zero)`` for every scalar parameter (see ``_check``)."""
+        out = [] if self.scale_tex is not None else [("thickness_scale", self.scale, True)]
+        if self.stack is not None:
+            for i, layer in enumerate(self.stack):
+                out.append((f"layer_{i}.thickness", layer.thickness, True))
+                if layer.dispersion is None:
+                    out += [(f"layer_{i}.ior", layer.ior, False), (f"layer_{i}.k", layer.k, True)]
+            return out
+        if self.thickness_tex is None:
+            out.append(("thickness", self.thickness, True))
+        if self.ior_tex is None and self.dispersion is None:
+            out.append(("film_ior", self.ior, False))
+        out.append(("film_k", self.k, True))
+        return out
+
+    def describe(self) -> str:
+        if self.stack is not None:
+            return "stack=[" + ", ".join(layer.describe() for layer in self.stack) + "]"
+        film = (self.dispersion.name if self.dispersion is not None
+                else "texture" if self.ior_tex is not None else self.ior)
+        thickness = "texture" if self.thickness_tex is not None else self.thickness
+        return f"thickness={thickness} nm, film_ior={film}, film_k={self.k}"
+
+    # -- layers at a surface point --------------------------------------------
+
+    def layers(self, si, wavelengths, active):
+        """``[(n, k, thickness_nm), ...]`` from the exterior down, at ``si`` and ``wavelengths``."""
+        scale = (self.scale_tex.eval_1(si, active) if self.scale_tex is not None else self.scale)
+        if self.stack is not None:
+            return [layer.at(wavelengths, scale) for layer in self.stack]
+        if self.ior_tex is not None:
+            n = self.ior_tex.eval(si, active)
+        elif self.dispersion is not None:
+            n = self.dispersion(wavelengths)
+        else:
+            n = mi.UnpolarizedSpectrum(self.ior)
+        k = self.dispersion.extinction(wavelengths) if self.dispersion is not None else self.k
+        if self.thickness_tex is not None:
+            thickness = dr.maximum(self.thickness_tex.eval_1(si, active), 0.0)
+        else:
+            thickness = self.thickness
+        return [(n, k, thickness * scale)]
+
+
+class _StackLayer:
+    """One layer of a ``stack`` parameter: its thickness and constant index as opaque Floats,
+    or a tabulated material."""
+
+    def __init__(self, layer):
+        self.thickness = mi.Float(layer.thickness_nm)
+        if isinstance(layer.material, Constant):
+            self.dispersion = None
+            self.ior = mi.Float(layer.material.n)
+            self.k = mi.Float(layer.material.k)
+        else:
+            self.dispersion = layer.material
+            self.ior = mi.Float(0.0)
+            self.k = mi.Float(0.0)
+
+    def at(self, wavelengths, scale):
+        if self.dispersion is not None:
+            return (self.dispersion(wavelengths), self.dispersion.extinction(wavelengths),
+                    self.thickness * scale)
+        return self.ior, self.k, self.thickness * scale
+
+    def describe(self) -> str:
+        index = self.dispersion.name if self.dispersion is not None else f"{self.ior}+{self.k}i"
+        return f"{index}:{self.thickness}"
+
+
+def _check(plugin, checks):
+    """Refuse a parameter update that makes a value negative (or zero where not allowed) or NaN."""
+    for name, value, allow_zero in checks:
+        v = dr.ravel(value)
+        bad = dr.any((v < 0) | (v != v)) if allow_zero else dr.any((v <= 0) | (v != v))
+        if bool(bad):
+            _fail(f"parameter '{name}' must be {'>= 0' if allow_zero else '> 0'}, got {value}",
+                  plugin)
+
+
+def _like(value, wavelengths):
+    """``value`` (a Float per lane) broadcast to the type of ``wavelengths``."""
+    cls = type(wavelengths)
+    return value if type(value) is cls else cls(value)
+
+
+def _mueller(a, b, c, s):
+    """Mitsuba's Mueller matrix ``[[a, b, 0, 0], [b, a, 0, 0], [0, 0, c, s], [0, 0, -s, c]]``."""
+    value = dr.zeros(mi.Spectrum)
+    value[0, 0] = a
+    value[0, 1] = b
+    value[1, 0] = b
+    value[1, 1] = a
+    value[2, 2] = c
+    value[2, 3] = s
+    value[3, 2] = -s
+    value[3, 3] = c
+    return value
+
+
+def _to_stokes_bases(value, wo_hat, wi_hat):
+    """Rotate a Mueller matrix given in the s/p frame (Stokes reference axis perpendicular to
+    the plane of incidence) into Mitsuba's implicit Stokes bases of ``-wo_hat`` (incoming
+    light) and ``wi_hat`` (outgoing light), as Mitsuba's ``conductor`` and ``dielectric`` do."""
+    n = mi.Vector3f(0, 0, 1)
+    s_in = dr.cross(n, -wo_hat)
+    s_out = dr.cross(n, wi_hat)
+    collinear = dr.all(s_in == mi.Vector3f(0))
+    s_in = dr.select(collinear, mi.Vector3f(1, 0, 0), dr.normalize(s_in))
+    s_out = dr.select(collinear, mi.Vector3f(1, 0, 0), dr.normalize(s_out))
+    return mi.mueller.rotate_mueller_basis(
+        value,
+        -wo_hat, s_in, mi.mueller.stokes_basis(-wo_hat),
+        wi_hat, s_out, mi.mueller.stokes_basis(wi_hat),
+    )
+
+
 class _ThinFilmMixin:
     """Thin-film interference BSDF (see the module docstring for the parameter table).
 
@@ -111,32 +353,7 @@ class _ThinFilmMixin:
         if not (mi.is_spectral or mi.is_monochromatic):
             _fail(f"needs a spectral or mono variant, not '{mi.variant()}'")
 
-        # Thickness: number or texture.
-        self.m_thickness_tex = _texture(props, "thickness")
-        if self.m_thickness_tex is not None:
-            self.m_thickness = mi.Float(0.0)
-        else:
-            self.m_thickness = mi.Float(_positive_float(props, "thickness", 400.0, allow_zero=True))
-
-        # Film index: number, spectrum texture or material name.
-        self.m_film_tex = _texture(props, "film_ior")
-        self.m_film_dispersion = None
-        raw = props.get("film_ior", 1.37) if "film_ior" in props else 1.37
-        if self.m_film_tex is not None:
-            self.m_film_ior = mi.Float(0.0)
-        elif isinstance(raw, str):
-            try:
-                disp = as_dispersion(raw)
-            except ValueError as e:
-                _fail(f"parameter 'film_ior': {e}")
-            if isinstance(disp, Constant):
-                self.m_film_ior = mi.Float(disp.n)
-            else:
-                self.m_film_dispersion = disp
-                self.m_film_ior = mi.Float(0.0)
-        else:
-            self.m_film_ior = mi.Float(_positive_float(props, "film_ior", 1.37))
-
+        self.m_film = _Film(props)
         self.m_substrate_ior = mi.Float(_positive_float(props, "substrate_ior", 1.6))
         self.m_substrate_k = mi.Float(_positive_float(props, "substrate_k", 0.0, allow_zero=True))
         self.m_ext_ior = mi.Float(_positive_float(props, "ext_ior", 1.0))
@@ -152,105 +369,67 @@ class _ThinFilmMixin:
     def _make_opaque(self):
         # Opaque scalars become kernel inputs, not literals: changing them
         # (a wavelength sweep, a thickness fit) reuses the compiled kernel.
-        dr.make_opaque(self.m_thickness, self.m_film_ior, self.m_substrate_ior,
-                       self.m_substrate_k, self.m_ext_ior, self.m_wavelength)
+        dr.make_opaque(*self.m_film.opaque(), self.m_substrate_ior, self.m_substrate_k,
+                       self.m_ext_ior, self.m_wavelength)
 
     def traverse(self, callback):
-        if self.m_thickness_tex is not None:
-            callback.put("thickness", self.m_thickness_tex, mi.ParamFlags.Differentiable)
-        else:
-            callback.put("thickness", self.m_thickness, mi.ParamFlags.Differentiable)
-        if self.m_film_tex is not None:
-            callback.put("film_ior", self.m_film_tex, mi.ParamFlags.Differentiable)
-        elif self.m_film_dispersion is None:
-            callback.put("film_ior", self.m_film_ior, mi.ParamFlags.Differentiable)
+        self.m_film.traverse(callback)
         callback.put("substrate_ior", self.m_substrate_ior, mi.ParamFlags.Differentiable)
         callback.put("substrate_k", self.m_substrate_k, mi.ParamFlags.Differentiable)
         callback.put("ext_ior", self.m_ext_ior, mi.ParamFlags.NonDifferentiable)
         callback.put("wavelength", self.m_wavelength, mi.ParamFlags.NonDifferentiable)
 
     def parameters_changed(self, keys=[]):
-        for name, value, allow_zero in (
-            ("thickness", self.m_thickness, True),
-            ("film_ior", self.m_film_ior, self.m_film_tex is not None or self.m_film_dispersion is not None),
+        _check("thinfilm", self.m_film.checks() + [
             ("substrate_ior", self.m_substrate_ior, False),
             ("substrate_k", self.m_substrate_k, True),
             ("ext_ior", self.m_ext_ior, False),
             ("wavelength", self.m_wavelength, False),
-        ):
-            if name == "thickness" and self.m_thickness_tex is not None:
-                continue
-            v = dr.ravel(value)
-            bad = dr.any((v < 0) | (v != v)) if allow_zero else dr.any((v <= 0) | (v != v))
-            if bool(bad):
-                _fail(f"parameter '{name}' must be {'>= 0' if allow_zero else '> 0'}, got {value}")
+        ])
         self._make_opaque()
 
     # -- physics ------------------------------------------------------------
 
     def _wavelengths(self, si):
+        """The wavelengths (nm) of the ray: ``si.wavelengths`` in spectral variants, the
+        ``wavelength`` parameter in mono variants."""
         if mi.is_spectral:
             return si.wavelengths
         return mi.UnpolarizedSpectrum(self.m_wavelength)
 
-    def _film_index(self, si, wavelengths, active):
-        if self.m_film_tex is not None:
-            return self.m_film_tex.eval(si, active)
-        if self.m_film_dispersion is not None:
-            return self.m_film_dispersion(wavelengths)
-        return mi.UnpolarizedSpectrum(self.m_film_ior)
+    def _mueller_entries(self, si, cos_theta, wavelengths, active):
+        """The entries ``(a, b, c, s)`` of the film's reflection Mueller matrix (s/p frame, see
+        :func:`thinfilm.bsdf.optics.mueller_entries`), one value per wavelength.
 
-    def _thickness(self, si, active):
-        if self.m_thickness_tex is not None:
-            return dr.maximum(self.m_thickness_tex.eval_1(si, active), 0.0)
-        return self.m_thickness
-
-    def _amplitudes(self, si, cos_theta, active):
-        wavelengths = self._wavelengths(si)
-        return optics.film_amplitudes(
-            mi.UnpolarizedSpectrum(cos_theta),
+        ``cos_theta`` (a Float per lane, in [0, 1]) is the cosine of incidence on the film
+        (the macro-surface, or a microfacet); ``wavelengths`` in nm (any Dr.Jit array the
+        optics broadcast against ``cos_theta``; dispersion tables are evaluated at them,
+        spectrum textures at ``si``). The only place this plugin calls the optics for
+        reflection; ``a`` alone is the unpolarized reflectance.
+        """
+        r_s, r_p = optics.stack_amplitudes(
+            _like(cos_theta, wavelengths),
             wavelengths,
-            self._thickness(si, active),
-            self._film_index(si, wavelengths, active),
+            self.m_film.layers(si, wavelengths, active),
             self.m_substrate_ior,
             self.m_substrate_k,
             self.m_ext_ior,
         )
+        return optics.mueller_entries(r_s, r_p)
 
     def _value(self, ctx, si, wo, active):
+        wavelengths = self._wavelengths(si)
         if not mi.is_polarized:
-            r_s, r_p = self._amplitudes(si, mi.Frame3f.cos_theta(si.wi), active)
-            return mi.UnpolarizedSpectrum(0.5 * (r_s.abs2() + r_p.abs2()))
+            a, _, _, _ = self._mueller_entries(si, mi.Frame3f.cos_theta(si.wi), wavelengths, active)
+            return mi.UnpolarizedSpectrum(a)
 
         # Light arrives along -wo_hat and leaves along +wi_hat (as in Mitsuba's conductor).
         radiance = ctx.mode == mi.TransportMode.Radiance
         wo_hat = wo if radiance else si.wi
         wi_hat = si.wi if radiance else wo
-        r_s, r_p = self._amplitudes(si, mi.Frame3f.cos_theta(wo_hat), active)
-        a, b, c, s = optics.mueller_entries(r_s, r_p)
-
-        value = dr.zeros(mi.Spectrum)
-        value[0, 0] = a
-        value[0, 1] = b
-        value[1, 0] = b
-        value[1, 1] = a
-        value[2, 2] = c
-        value[2, 3] = s
-        value[3, 2] = -s
-        value[3, 3] = c
-
+        a, b, c, s = self._mueller_entries(si, mi.Frame3f.cos_theta(wo_hat), wavelengths, active)
         # The Stokes reference axis of this matrix is perpendicular to the plane of reflection.
-        n = mi.Vector3f(0, 0, 1)
-        s_in = dr.cross(n, -wo_hat)
-        s_out = dr.cross(n, wi_hat)
-        collinear = dr.all(s_in == mi.Vector3f(0))
-        s_in = dr.select(collinear, mi.Vector3f(1, 0, 0), dr.normalize(s_in))
-        s_out = dr.select(collinear, mi.Vector3f(1, 0, 0), dr.normalize(s_out))
-        return mi.mueller.rotate_mueller_basis(
-            value,
-            -wo_hat, s_in, mi.mueller.stokes_basis(-wo_hat),
-            wi_hat, s_out, mi.mueller.stokes_basis(wi_hat),
-        )
+        return _to_stokes_bases(_mueller(a, b, c, s), wo_hat, wi_hat)
 
     # -- BSDF interface -----------------------------------------------------
 
@@ -278,10 +457,7 @@ class _ThinFilmMixin:
         return dr.zeros(mi.Spectrum), mi.Float(0.0)
 
     def to_string(self):
-        film = (self.m_film_dispersion.name if self.m_film_dispersion is not None
-                else "texture" if self.m_film_tex is not None else self.m_film_ior)
-        thickness = "texture" if self.m_thickness_tex is not None else self.m_thickness
-        return (f"ThinFilmBSDF[thickness={thickness} nm, film_ior={film}, "
+        return (f"ThinFilmBSDF[{self.m_film.describe()}, "
                 f"substrate_ior={self.m_substrate_ior}, substrate_k={self.m_substrate_k}, "
                 f"ext_ior={self.m_ext_ior}, wavelength={self.m_wavelength} nm]")
 
