@@ -93,7 +93,7 @@ import numbers
 import drjit as dr
 import mitsuba as mi
 
-from . import optics
+from . import optics, rgb
 from .materials import Constant, as_dispersion, parse_stack
 
 __all__ = ["bsdf_class", "register", "variant_class"]
@@ -170,6 +170,10 @@ class _Film:
         k = None
         raw = props.get("film_ior", default_ior) if "film_ior" in props else default_ior
         if self.ior_tex is not None:
+            if mi.is_rgb and props.type("film_ior") == mi.Properties.Type.Spectrum \
+                    and "uniform=" not in str(raw):
+                _fail("parameter 'film_ior': a spectrum needs a spectral variant (Mitsuba's RGB "
+                      "variants reduce it to a colour); give a number or a material name", plugin)
             self.ior = mi.Float(0.0)
         elif isinstance(raw, str):
             try:
@@ -254,7 +258,9 @@ class _Film:
         scale = (self.scale_tex.eval_1(si, active) if self.scale_tex is not None else self.scale)
         if self.stack is not None:
             return [layer.at(wavelengths, scale) for layer in self.stack]
-        if self.ior_tex is not None:
+        if self.ior_tex is not None and mi.is_rgb:  # RGB: one (grey) index per point
+            n = _like(self.ior_tex.eval_1(si, active), wavelengths)
+        elif self.ior_tex is not None:
             n = self.ior_tex.eval(si, active)
         elif self.dispersion is not None:
             n = self.dispersion(wavelengths)
@@ -350,8 +356,8 @@ class _ThinFilmMixin:
 
     def __init__(self, props):
         mi.BSDF.__init__(self, props)
-        if not (mi.is_spectral or mi.is_monochromatic):
-            _fail(f"needs a spectral or mono variant, not '{mi.variant()}'")
+        # RGB variants: the film's spectra are integrated against a colour basis (rgb.py).
+        self.m_rgb = rgb.colour_basis() if mi.is_rgb else None
 
         self.m_film = _Film(props)
         self.m_substrate_ior = mi.Float(_positive_float(props, "substrate_ior", 1.6))
@@ -417,17 +423,28 @@ class _ThinFilmMixin:
         )
         return optics.mueller_entries(r_s, r_p)
 
+    def _entries(self, si, cos_theta, count, active):
+        """The first ``count`` Mueller entries in the variant's colour representation.
+
+        Spectral and mono variants: :meth:`_mueller_entries` at the ray's wavelengths. RGB
+        variants: integrated over the visible range against the colour basis
+        (:func:`thinfilm.bsdf.rgb.integrate`).
+        """
+        if self.m_rgb is not None:
+            return rgb.integrate(self.m_rgb, lambda lam: self._mueller_entries(si, cos_theta, lam, active),
+                                 count, mi.UnpolarizedSpectrum)
+        return self._mueller_entries(si, cos_theta, self._wavelengths(si), active)[:count]
+
     def _value(self, ctx, si, wo, active):
-        wavelengths = self._wavelengths(si)
         if not mi.is_polarized:
-            a, _, _, _ = self._mueller_entries(si, mi.Frame3f.cos_theta(si.wi), wavelengths, active)
+            (a,) = self._entries(si, mi.Frame3f.cos_theta(si.wi), 1, active)
             return mi.UnpolarizedSpectrum(a)
 
         # Light arrives along -wo_hat and leaves along +wi_hat (as in Mitsuba's conductor).
         radiance = ctx.mode == mi.TransportMode.Radiance
         wo_hat = wo if radiance else si.wi
         wi_hat = si.wi if radiance else wo
-        a, b, c, s = self._mueller_entries(si, mi.Frame3f.cos_theta(wo_hat), wavelengths, active)
+        a, b, c, s = self._entries(si, mi.Frame3f.cos_theta(wo_hat), 4, active)
         # The Stokes reference axis of this matrix is perpendicular to the plane of reflection.
         return _to_stokes_bases(_mueller(a, b, c, s), wo_hat, wi_hat)
 
