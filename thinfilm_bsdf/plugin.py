@@ -61,7 +61,7 @@
      - float
      - 550
      - Wavelength in nm used in ``mono`` variants (which carry none). Changing it through
-       ``mi.traverse`` reuses the compiled kernel.
+       ``mi.traverse`` reuses the compiled kernel. Not used in spectral and RGB variants.
      - ``wavelength``, not differentiable
 
 Reflection is a delta lobe (mirror direction); transmission is not modelled (the film sits
@@ -73,7 +73,30 @@ Mitsuba's ``conductor``. With ``thickness = 0`` it equals ``conductor`` with
 :func:`thinfilm.bsdf.optics.stack_amplitudes` (one film is the one-layer stack).
 
 Works in the ``scalar_spectral[_polarized]``, ``llvm_ad_spectral[_polarized]``,
-``llvm_ad_mono[_polarized]`` and ``cuda_*`` variants.
+``llvm_ad_mono[_polarized]``, ``scalar_rgb``, ``llvm_ad_rgb`` and ``cuda_*`` variants
+(written to run unchanged in an ``*_rgb_polarized`` variant too; Mitsuba 3.9's wheels ship none).
+
+RGB variants
+------------
+The film's spectrum is integrated over the visible range *inside* the kernel, so that an RGB
+render under a white (grey) emitter matches Mitsuba's own spectral render of the same scene
+converted to sRGB by its film. Per channel, ``RGB_c = Σ_i w_ic (a, b, c, s)(λ_i)`` (all four
+Mueller entries in a polarized RGB variant), with (:mod:`thinfilm.bsdf.rgb`):
+
+* colour-matching functions: CIE 1931 2° observer, Mitsuba's 5 nm table (360–830 nm,
+  linearly interpolated, ``cie1931_xyz``), converted to linear sRGB with Mitsuba's
+  XYZ → Rec. 709 matrix (``xyz_to_srgb``);
+* illuminant: CIE D65 (``cie_d65``), which is what Mitsuba's emitters emit in spectral
+  variants for an RGB or float radiance;
+* white point: D65; the weights are normalised so that a reflectance of 1 at every wavelength
+  gives exactly (1, 1, 1);
+* quadrature: 24 nodes equally spaced in wavenumber over 390–730 nm, weights that integrate
+  the natural cubic spline (in wavenumber) through the node values exactly.
+
+Mean ΔE*ab against Mitsuba's converged spectral render is about 0.1 (see the tests). In RGB
+variants ``film_ior`` is a number, ``n+ki`` text, a material name or a grey texture (read with
+``eval_1``), and ``stack`` works as in spectral variants; a spectrum is refused, because Mitsuba's RGB variants reduce it to a colour before the plugin
+sees it. ``wavelength`` is not used.
 
 Example
 -------
