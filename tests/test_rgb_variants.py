@@ -29,18 +29,13 @@ def _delta_e(rgb_a, rgb_b):
     return colour.delta_E(_lab(rgb_a), _lab(rgb_b), method="CIE 1976")
 
 
-def _colour_science_rgb(theta_deg, thickness_nm, film_ior, substrate_ior):
-    """Linear sRGB of the film's unpolarized reflectance under D65, by colour-science alone.
+def _srgb_under_d65(lam, R):
+    """Linear sRGB of reflectance spectra ``R`` (wavelengths first) under D65, by colour-science.
 
-    Returns an array (len(theta_deg), len(thickness_nm), 3); a perfect reflector gives (1, 1, 1).
+    A perfect reflector gives (1, 1, 1). Returns shape ``R.shape[1:] + (3,)``.
     """
     import colour
-    from colour.phenomena import thin_film_tmm
 
-    lam = np.arange(360.0, 831.0, 1.0)
-    R, _ = thin_film_tmm([1.0, film_ior, substrate_ior], np.asarray(thickness_nm, dtype=np.float64), lam,
-                         np.asarray(theta_deg, dtype=np.float64))
-    R = R.mean(axis=-1)  # unpolarized: (R_s + R_p) / 2, shape (W, A, T)
     shape = R.shape[1:]
     cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"]
     d65 = colour.SDS_ILLUMINANTS["D65"].copy().align(colour.SpectralShape(360, 830, 1))  # CIE's ends at 780
@@ -48,6 +43,19 @@ def _colour_science_rgb(theta_deg, thickness_nm, film_ior, substrate_ior):
     xyz = colour.msds_to_XYZ(msds, cmfs, d65, method="Integration", shape=colour.SpectralShape(360, 830, 1)) / 100.0
     rgb = colour.XYZ_to_RGB(xyz, colour.RGB_COLOURSPACES["sRGB"], apply_cctf_encoding=False)
     return rgb.reshape(*shape, 3)
+
+
+def _colour_science_rgb(theta_deg, thickness_nm, film_ior, substrate_ior):
+    """Linear sRGB under D65 of one film's unpolarized reflectance (colour's ``thin_film_tmm``).
+
+    Returns an array (len(theta_deg), len(thickness_nm), 3).
+    """
+    from colour.phenomena import thin_film_tmm
+
+    lam = np.arange(360.0, 831.0, 1.0)
+    R, _ = thin_film_tmm([1.0, film_ior, substrate_ior], np.asarray(thickness_nm, dtype=np.float64), lam,
+                         np.asarray(theta_deg, dtype=np.float64))
+    return _srgb_under_d65(lam, R.mean(axis=-1))  # unpolarized: (R_s + R_p) / 2, (W, A, T)
 
 
 def _interactions(mi, theta_deg):
@@ -143,6 +151,23 @@ def test_bsdf_colour_matches_colour_science(use_variant, film_ior, substrate_ior
     ref = _colour_science_rgb(THETAS, THICKNESSES, film_ior, substrate_ior)
     dE = _delta_e(ours, ref)
     assert dE.mean() <= 0.5 and np.percentile(dE, 95) <= 1.0, (dE.mean(), np.percentile(dE, 95), dE.max())
+
+
+@pytest.mark.parametrize("stack", ["1.38:99.6, 2.1:65.5", "2.3:60, 1.38:95, 2.3:60, 1.38:95"])
+def test_stack_colour_matches_colour_science(use_variant, stack):
+    """A film stack (anti-reflection coating, dielectric mirror) in RGB against colour-science's
+    ``multilayer_tmm`` spectrum converted to sRGB by colour-science."""
+    from colour.phenomena import multilayer_tmm
+
+    mi = use_variant("llvm_ad_rgb")
+    bsdf = mi.load_dict({"type": "thinfilm", "stack": stack, "substrate_ior": 1.52})
+    ours = _sample_values(mi, bsdf, THETAS)
+    layers = [[float(v) for v in layer.split(":")] for layer in stack.split(",")]
+    lam = np.arange(360.0, 831.0, 1.0)
+    R, _ = multilayer_tmm([1.0] + [n for n, _ in layers] + [1.52], [d for _, d in layers], lam, THETAS)
+    ref = _srgb_under_d65(lam, R.reshape(len(lam), len(THETAS), 2).mean(axis=-1))
+    dE = _delta_e(ours, ref)
+    assert dE.mean() <= 0.5 and dE.max() <= 1.0, dE
 
 
 def _tilted_plane_scene(mi, theta_deg, bsdf, res=16, spp=64):

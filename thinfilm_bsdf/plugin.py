@@ -93,7 +93,9 @@ Mueller entries in a polarized RGB variant), with (:mod:`thinfilm.bsdf.rgb`):
 * quadrature: 24 nodes equally spaced in wavenumber over 390–730 nm, weights that integrate
   the natural cubic spline (in wavenumber) through the node values exactly.
 
-Mean ΔE*ab against Mitsuba's converged spectral render is about 0.1 (see the tests). In RGB
+Per direction the colour is within a mean ΔE*ab of about 0.02–0.1 of Mitsuba's converged
+spectral render and of colour-science's integral of the tmm spectrum
+(``tests/test_rgb_variants.py``, ``benchmarks/bench_rgb_variant.py --accuracy``). In RGB
 variants ``film_ior`` is a number, ``n+ki`` text, a material name or a grey texture (read with
 ``eval_1``), and ``stack`` works as in spectral variants; a spectrum is refused, because Mitsuba's RGB variants reduce it to a colour before the plugin
 sees it. ``wavelength`` is not used.
