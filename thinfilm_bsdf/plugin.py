@@ -61,7 +61,7 @@
      - float
      - 550
      - Wavelength in nm used in ``mono`` variants (which carry none). Changing it through
-       ``mi.traverse`` reuses the compiled kernel.
+       ``mi.traverse`` reuses the compiled kernel. Not used in spectral and RGB variants.
      - ``wavelength``, not differentiable
 
 Reflection is a delta lobe (mirror direction); transmission is not modelled (the film sits
@@ -73,7 +73,32 @@ Mitsuba's ``conductor``. With ``thickness = 0`` it equals ``conductor`` with
 :func:`thinfilm.bsdf.optics.stack_amplitudes` (one film is the one-layer stack).
 
 Works in the ``scalar_spectral[_polarized]``, ``llvm_ad_spectral[_polarized]``,
-``llvm_ad_mono[_polarized]`` and ``cuda_*`` variants.
+``llvm_ad_mono[_polarized]``, ``scalar_rgb``, ``llvm_ad_rgb`` and ``cuda_*`` variants
+(written to run unchanged in an ``*_rgb_polarized`` variant too; Mitsuba 3.9's wheels ship none).
+
+RGB variants
+------------
+The film's spectrum is integrated over the visible range *inside* the kernel, so that an RGB
+render under a white (grey) emitter matches Mitsuba's own spectral render of the same scene
+converted to sRGB by its film. Per channel, ``RGB_c = Σ_i w_ic (a, b, c, s)(λ_i)`` (all four
+Mueller entries in a polarized RGB variant), with (:mod:`thinfilm.bsdf.rgb`):
+
+* colour-matching functions: CIE 1931 2° observer, Mitsuba's 5 nm table (360–830 nm,
+  linearly interpolated, ``cie1931_xyz``), converted to linear sRGB with Mitsuba's
+  XYZ → Rec. 709 matrix (``xyz_to_srgb``);
+* illuminant: CIE D65 (``cie_d65``), which is what Mitsuba's emitters emit in spectral
+  variants for an RGB or float radiance;
+* white point: D65; the weights are normalised so that a reflectance of 1 at every wavelength
+  gives exactly (1, 1, 1);
+* quadrature: 24 nodes equally spaced in wavenumber over 390–730 nm, weights that integrate
+  the natural cubic spline (in wavenumber) through the node values exactly.
+
+Per direction the colour is within a mean ΔE*ab of about 0.02–0.1 of Mitsuba's converged
+spectral render and of colour-science's integral of the tmm spectrum
+(``tests/test_rgb_variants.py``, ``benchmarks/bench_rgb_variant.py --accuracy``). In RGB
+variants ``film_ior`` is a number, ``n+ki`` text, a material name or a grey texture (read with
+``eval_1``), and ``stack`` works as in spectral variants; a spectrum is refused, because Mitsuba's RGB variants reduce it to a colour before the plugin
+sees it. ``wavelength`` is not used.
 
 Example
 -------
@@ -93,7 +118,7 @@ import numbers
 import drjit as dr
 import mitsuba as mi
 
-from . import optics
+from . import optics, rgb
 from .materials import Constant, as_dispersion, parse_stack
 
 __all__ = ["bsdf_class", "register", "variant_class"]
@@ -170,6 +195,10 @@ class _Film:
         k = None
         raw = props.get("film_ior", default_ior) if "film_ior" in props else default_ior
         if self.ior_tex is not None:
+            if mi.is_rgb and props.type("film_ior") == mi.Properties.Type.Spectrum \
+                    and "uniform=" not in str(raw):
+                _fail("parameter 'film_ior': a spectrum needs a spectral variant (Mitsuba's RGB "
+                      "variants reduce it to a colour); give a number or a material name", plugin)
             self.ior = mi.Float(0.0)
         elif isinstance(raw, str):
             try:
@@ -254,7 +283,9 @@ class _Film:
         scale = (self.scale_tex.eval_1(si, active) if self.scale_tex is not None else self.scale)
         if self.stack is not None:
             return [layer.at(wavelengths, scale) for layer in self.stack]
-        if self.ior_tex is not None:
+        if self.ior_tex is not None and mi.is_rgb:  # RGB: one (grey) index per point
+            n = _like(self.ior_tex.eval_1(si, active), wavelengths)
+        elif self.ior_tex is not None:
             n = self.ior_tex.eval(si, active)
         elif self.dispersion is not None:
             n = self.dispersion(wavelengths)
@@ -350,8 +381,8 @@ class _ThinFilmMixin:
 
     def __init__(self, props):
         mi.BSDF.__init__(self, props)
-        if not (mi.is_spectral or mi.is_monochromatic):
-            _fail(f"needs a spectral or mono variant, not '{mi.variant()}'")
+        # RGB variants: the film's spectra are integrated against a colour basis (rgb.py).
+        self.m_rgb = rgb.colour_basis() if mi.is_rgb else None
 
         self.m_film = _Film(props)
         self.m_substrate_ior = mi.Float(_positive_float(props, "substrate_ior", 1.6))
@@ -417,17 +448,28 @@ class _ThinFilmMixin:
         )
         return optics.mueller_entries(r_s, r_p)
 
+    def _entries(self, si, cos_theta, count, active):
+        """The first ``count`` Mueller entries in the variant's colour representation.
+
+        Spectral and mono variants: :meth:`_mueller_entries` at the ray's wavelengths. RGB
+        variants: integrated over the visible range against the colour basis
+        (:func:`thinfilm.bsdf.rgb.integrate`).
+        """
+        if self.m_rgb is not None:
+            return rgb.integrate(self.m_rgb, lambda lam: self._mueller_entries(si, cos_theta, lam, active),
+                                 count, mi.UnpolarizedSpectrum)
+        return self._mueller_entries(si, cos_theta, self._wavelengths(si), active)[:count]
+
     def _value(self, ctx, si, wo, active):
-        wavelengths = self._wavelengths(si)
         if not mi.is_polarized:
-            a, _, _, _ = self._mueller_entries(si, mi.Frame3f.cos_theta(si.wi), wavelengths, active)
+            (a,) = self._entries(si, mi.Frame3f.cos_theta(si.wi), 1, active)
             return mi.UnpolarizedSpectrum(a)
 
         # Light arrives along -wo_hat and leaves along +wi_hat (as in Mitsuba's conductor).
         radiance = ctx.mode == mi.TransportMode.Radiance
         wo_hat = wo if radiance else si.wi
         wi_hat = si.wi if radiance else wo
-        a, b, c, s = self._mueller_entries(si, mi.Frame3f.cos_theta(wo_hat), wavelengths, active)
+        a, b, c, s = self._entries(si, mi.Frame3f.cos_theta(wo_hat), 4, active)
         # The Stokes reference axis of this matrix is perpendicular to the plane of reflection.
         return _to_stokes_bases(_mueller(a, b, c, s), wo_hat, wi_hat)
 
