@@ -1,8 +1,8 @@
 """Film descriptions: the one way of turning a film into numbers.
 
-A :class:`Film` is a stack of :class:`Layer` objects from the exterior down, each with a
-refractive index (a number, a dispersion model or a shipped material with its extinction k)
-and a thickness, on a substrate ``n3 + i k3``, seen from an exterior medium of real index
+A :class:`Film` is a stack of layers (:class:`thinfilm.bsdf.materials.Layer`: a material,
+which is a number, a dispersion model or a shipped material with its extinction k, and a
+thickness) from the exterior down, on a substrate ``n3 + i k3``, seen from an exterior medium of real index
 ``n1``. A single film is a stack of one. The capture generator, the reconstruction forward
 models, the evaluation, the Mitsuba plugin dictionaries and ``meta.json`` all use it.
 
@@ -39,10 +39,11 @@ True
 from __future__ import annotations
 
 import math
-import re
 from dataclasses import dataclass, replace
 
 import numpy as np
+
+from thinfilm.bsdf.materials import Layer
 
 from .errors import UserError
 
@@ -56,9 +57,6 @@ __all__ = [
 
 #: wavelength (nm) at which a dispersive index is read when one number is needed
 REFERENCE_WAVELENGTH_NM = 550.0
-
-_COMPLEX = re.compile(r"^\s*([0-9.eE+-]+?)\s*([+-])\s*([0-9.eE+-]*)\s*[ij]\s*$")
-
 
 def as_index(value, where: str = "refractive index"):
     """A dispersion model (``thinfilm.bsdf`` ``Constant``, ``Cauchy`` or ``Tabulated``) from
@@ -80,16 +78,7 @@ def as_index(value, where: str = "refractive index"):
         n, k = value["n"], value.get("k", 0.0)
         if _is_number(n) and _is_number(k):
             disp = Constant(float(n), float(k))
-    elif isinstance(value, str) and _COMPLEX.match(value):
-        m = _COMPLEX.match(value)
-        try:
-            k = float(m.group(3) or "1")
-            disp = Constant(float(m.group(1)), k if m.group(2) == "+" else -k)
-        except ValueError:
-            disp = None
-    elif isinstance(value, bool):
-        disp = None
-    else:
+    elif not isinstance(value, bool):
         try:
             disp = as_dispersion(value)
         except (ValueError, TypeError) as e:
@@ -123,24 +112,6 @@ def index_to_json(index):
     if isinstance(index, Cauchy):
         return {"cauchy": [float(index.A), float(index.B), float(index.C)]}
     raise TypeError(f"not an index model: {index!r}")
-
-
-@dataclass(frozen=True)
-class Layer:
-    """One homogeneous layer: ``index`` (a dispersion model, see :func:`as_index`; ``None``
-    where it is unknown) and ``thickness_nm`` (``None`` where it is unknown or varies over
-    the object)."""
-
-    index: object
-    thickness_nm: float | None = None
-
-    def n_k(self, wavelength_nm):
-        """Real index and extinction at ``wavelength_nm`` (arrays shaped like it)."""
-        if self.index is None:
-            raise ValueError("the layer's index is not known")
-        lam = np.asarray(wavelength_nm, dtype=np.float64)
-        return (np.asarray(self.index(lam), dtype=np.float64),
-                np.asarray(self.index.extinction(lam), dtype=np.float64))
 
 
 @dataclass(frozen=True)
@@ -225,15 +196,17 @@ class Film:
 
     def to_meta(self) -> dict:
         """``meta.json`` entries: ``film`` (the whole description) and the single-film keys
-        ``film_ior`` (the top layer's index), ``substrate_ior`` and ``substrate_k``."""
+        ``film_ior`` (the top layer's index), ``substrate_ior`` and ``substrate_k`` for
+        readers of single-film datasets."""
         sub = index_to_json(self.substrate)
         sub_n = sub["n"] if isinstance(sub, dict) and "n" in sub else sub
         return {
-            "film": {"layers": [{"ior": index_to_json(layer.index), "thickness_nm": layer.thickness_nm}
+            "film": {"layers": [{"ior": index_to_json(layer.material), "thickness_nm": layer.thickness_nm}
                                 for layer in self.layers],
                      "substrate": {"ior": sub},
                      "ext_ior": self.ext_ior},
-            "film_ior": index_to_json(self.layers[0].index) if len(self.layers) == 1 else None,
+            # a stack's top layer, for readers of single-film datasets
+            "film_ior": index_to_json(self.layers[0].material),
             "substrate_ior": sub_n,
             "substrate_k": float(getattr(self.substrate, "k", 0.0) or 0.0),
         }
@@ -241,7 +214,7 @@ class Film:
     def with_index(self, film_ior, layer: int = 0) -> "Film":
         """A copy with layer ``layer``'s index replaced (any form of :func:`as_index`)."""
         layers = list(self.layers)
-        layers[layer] = replace(layers[layer], index=as_index(film_ior, f"film layer {layer} index"))
+        layers[layer] = replace(layers[layer], material=as_index(film_ior, f"film layer {layer} index"))
         return replace(self, layers=tuple(layers))
 
     def with_substrate(self, substrate_ior, substrate_k=0.0) -> "Film":
@@ -273,53 +246,87 @@ class Film:
         """Whether the substrate has k > 0 anywhere in 300-1000 nm."""
         return bool(np.any(self.substrate_n_k(np.linspace(300.0, 1000.0, 141))[1] > 0))
 
-    def reflectances(self, cos_theta, wavelength_nm, thickness_nm=None, backend=None):
+    def reflectances(self, cos_theta, wavelength_nm, thickness_nm=None):
         """Power reflectances ``(R_s, R_p)`` through the optics core.
 
-        ``thickness_nm`` overrides a single film's thickness (arrays broadcast as in
-        :func:`thinfilm.bsdf.optics.reflectances`); ``wavelength_nm`` gives the dispersion.
+        ``thickness_nm`` replaces the top layer's thickness (arrays broadcast as in
+        :func:`thinfilm.bsdf.optics.reflectances`); the other layers of a stack scale with it
+        (see :meth:`thickness_scale`). ``wavelength_nm`` gives the dispersion.
         """
         from thinfilm.bsdf import optics
 
-        if not self.is_single:
-            raise NotImplementedError("reflectances of film stacks")
         lam = np.asarray(wavelength_nm, dtype=np.float64)
-        d = self.layers[0].thickness_nm if thickness_nm is None else thickness_nm
-        if d is None:
+        top = self.layers[0].thickness_nm if thickness_nm is None else thickness_nm
+        if top is None:
             raise ValueError("the film's thickness is not known: pass thickness_nm")
-        n2, k2 = self.layers[0].n_k(lam)
         n3, k3 = self.substrate_n_k(lam)
-        return optics.reflectances(cos_theta, lam, d, n2, n3, k3, self.ext_ior, k2)
+        if self.is_single:
+            n2, k2 = self.layers[0].n_k(lam)
+            return optics.reflectances(cos_theta, lam, top, n2, n3, k3, self.ext_ior, k2)
+        scale = self.thickness_scale(top)
+        layers = [(*layer.n_k(lam), scale * layer.thickness_nm) for layer in self.layers]
+        R_s, R_p, _, _ = optics.stack_powers(cos_theta, lam, layers, n3, k3, self.ext_ior)
+        return R_s, R_p
+
+    def thickness_scale(self, top_thickness_nm):
+        """The factor on every layer's thickness that gives the top layer ``top_thickness_nm``
+        (a stack deposited thinner or thicker as a whole; arrays allowed)."""
+        nominal = self.layers[0].thickness_nm
+        if not nominal:
+            raise ValueError("the stack's top layer needs a thickness > 0 to scale the stack")
+        return np.asarray(top_thickness_nm, dtype=np.float64) / nominal
 
     # -- Mitsuba --------------------------------------------------------------------------------
 
-    def plugin_dict(self, thickness=None) -> dict:
+    def plugin_dict(self, thickness=None, thickness_scale=None) -> dict:
         """The ``thinfilm`` BSDF dictionary of this film for ``mi.load_dict``.
 
         ``thickness``: a number of nm or a texture dictionary replacing a single film's
-        thickness (default: the layer's own).
+        thickness (default: the layer's own). A stack is written as the plugin's ``stack``
+        text with its nominal thicknesses, and ``thickness_scale`` (a number or a texture
+        dictionary) multiplies them.
         """
         from thinfilm.bsdf.materials import Constant
 
-        if not self.is_single:
-            raise NotImplementedError("plugin dictionaries of film stacks")
-        layer = self.layers[0]
-        t = layer.thickness_nm if thickness is None else thickness
-        if t is None:
-            raise ValueError("the film's thickness is not known: pass thickness")
-        out = {"type": "thinfilm", "thickness": t, "ext_ior": float(self.ext_ior)}
-        index = layer.index
-        if isinstance(index, Constant):
-            out["film_ior"] = float(index.n)
-            if index.k:
-                out["film_k"] = float(index.k)
-        elif hasattr(index, "name"):
-            out["film_ior"] = index.name
+        out = {"type": "thinfilm", "ext_ior": float(self.ext_ior)}
+        if self.is_single:
+            if thickness_scale is not None:
+                raise ValueError("a single film takes thickness, not thickness_scale")
+            layer = self.layers[0]
+            t = layer.thickness_nm if thickness is None else thickness
+            if t is None:
+                raise ValueError("the film's thickness is not known: pass thickness")
+            out["thickness"] = t
+            index = layer.material
+            if isinstance(index, Constant):
+                out["film_ior"] = float(index.n)
+                if index.k:
+                    out["film_k"] = float(index.k)
+            else:
+                out["film_ior"] = _plugin_index_text(index)
         else:
-            raise NotImplementedError(f"film index {index!r} in the plugin (a number or a material name)")
+            if thickness is not None:
+                raise ValueError("a stack takes thickness_scale, not thickness")
+            if any(layer.thickness_nm is None for layer in self.layers):
+                raise ValueError("every layer of a stack needs its thickness")
+            out["stack"] = ", ".join(f"{_plugin_index_text(layer.material)}:{layer.thickness_nm!r}"
+                                     for layer in self.layers)
+            if thickness_scale is not None:
+                out["thickness_scale"] = thickness_scale
         sub = self.substrate
         if not isinstance(sub, Constant):
-            raise NotImplementedError("dispersive substrates in the plugin")
+            raise NotImplementedError("dispersive substrates in the plugin (give a number)")
         out["substrate_ior"] = float(sub.n)
         out["substrate_k"] = float(sub.k)
         return out
+
+
+def _plugin_index_text(index) -> str:
+    """An index as the plugin's text (a number, ``n+ki`` or a material name)."""
+    from thinfilm.bsdf.materials import Constant
+
+    if isinstance(index, Constant):
+        return f"{index.n!r}+{index.k!r}i" if index.k else repr(index.n)
+    if hasattr(index, "name"):
+        return index.name
+    raise NotImplementedError(f"film index {index!r} in the plugin (a number, n+ki or a material name)")

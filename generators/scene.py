@@ -13,7 +13,7 @@ import numpy as np
 
 from .frame import Frame, frame_for
 from .shapes import geometry
-from .thickness import thickness_map, thickness_texture
+from .thickness import film_bsdf, thickness_map
 
 __all__ = [
     "ENVMAP_ROWS",
@@ -120,7 +120,7 @@ def build_scene_dict(spec):
     frame = frame_for(extent, zmin, zmax, rim, spec.rig.resolution, spec.rig.fill,
                       offset_px=(0.25, 0.125) if kind == "mesh" else (0.0, 0.0))
     thickness = thickness_map(spec.thickness, frame)
-    bsdf = spec.film.plugin_dict(thickness_texture(thickness, frame))
+    bsdf = film_bsdf(spec.film, thickness, frame)
     if kind == "sphere":
         shape_entry = {"type": "sphere", "center": [0.0, 0.0, 0.0], "radius": geo["radius"], "bsdf": bsdf}
     elif kind == "cylinder":
@@ -198,7 +198,7 @@ def normal_map_scene(normals, thickness_nm, mask, film, dome_hole_deg: float = 0
         if thickness.shape != (height, width):
             raise ValueError(f"thickness_nm must be ({height}, {width}), got {thickness.shape}")
         thickness = np.where(np.isfinite(thickness), np.maximum(thickness, 0.0), 0.0).astype(np.float32)
-    bsdf = film.plugin_dict(thickness_texture(thickness, frame))
+    bsdf = film_bsdf(film, thickness, frame)
     hole = float(dome_hole_deg)
     rows, cols = np.nonzero(mask)
     if rows.size == 0:

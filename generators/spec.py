@@ -109,8 +109,9 @@ class SceneSpec:
     ----------
     seed : int
     shape : :class:`Shape`
-    film : :class:`thinfilm.core.film.Film` (the layer thickness is ``None``: it follows
-        ``thickness``)
+    film : :class:`thinfilm.core.film.Film` (a single film's thickness is ``None``: it
+        follows ``thickness``; a stack's layers keep their nominal thicknesses, and
+        ``thickness`` gives the top layer's, the others scaling with it)
     thickness : dict, the thickness profile table (``profile`` and its keys)
     rig : :class:`Rig`
     noise : :class:`Noise`
@@ -134,10 +135,14 @@ class SceneSpec:
     @classmethod
     def from_dict(cls, d: dict, source: str = "scene spec") -> "SceneSpec":
         """From a *resolved* spec dictionary (:func:`.spec_schema.resolve`)."""
-        from thinfilm.core.film import Film
+        from thinfilm.core.film import Film, Layer, as_index
 
-        film = Film.single(d["film"]["ior"], None, d["substrate"]["ior"], d["substrate"]["k"],
+        film = Film.single(d["film"].get("ior", 1.0), None, d["substrate"]["ior"], d["substrate"]["k"],
                            where=source)
+        if "layers" in d["film"]:
+            film = Film(tuple(Layer(as_index(layer["ior"], f"{source}: 'film.layers[{i}].ior'"),
+                                    layer["thickness_nm"]) for i, layer in enumerate(d["film"]["layers"])),
+                        film.substrate, film.ext_ior)
         thickness = {k: v for k, v in d["film"]["thickness"].items()}
         rig = dict(d["rig"])
         rig["polarizer_angles_deg"] = tuple(rig["polarizer_angles_deg"])
@@ -148,14 +153,22 @@ class SceneSpec:
         """The resolved spec dictionary (loads back to an equal spec)."""
         from thinfilm.core.film import index_to_json
 
-        layer = self.film.layers[0]
         sub = self.film.substrate
         rig = dict(self.rig.__dict__)
         rig["polarizer_angles_deg"] = list(rig["polarizer_angles_deg"])
+        def ior(material):  # as the spec writes it: a number, "n+ki" or a material name
+            value = index_to_json(material)
+            return f"{value['n']!r}+{value['k']!r}i" if isinstance(value, dict) else value
+
+        if self.film.is_single:
+            film = {"ior": ior(self.film.layers[0].material)}
+        else:
+            film = {"layers": [{"ior": ior(layer.material), "thickness_nm": layer.thickness_nm}
+                               for layer in self.film.layers]}
         return {
             "seed": self.seed,
             "shape": {"kind": self.shape.kind, **copy.deepcopy(self.shape.params)},
-            "film": {"ior": index_to_json(layer.index), "thickness": dict(self.thickness)},
+            "film": {**film, "thickness": dict(self.thickness)},
             "substrate": {"ior": float(sub.n), "k": float(sub.k)},
             "rig": rig,
             "noise": self.noise.as_dict(),

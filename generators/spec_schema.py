@@ -41,6 +41,11 @@ _PROFILE_KEYS = {
 }
 
 _FILM_KEYS = {"ior": ("ior", 1.37)}
+#: a stack instead of one film: ``layers = [{ ior = ..., thickness_nm = ... }, ...]`` from the
+#: exterior down (then ``film.thickness`` gives the top layer's thickness and the others scale
+#: with it)
+_STACK_KEYS = {"layers": ("layers", _REQUIRED)}
+_LAYER_KEYS = {"ior": ("ior", _REQUIRED), "thickness_nm": ("positive", _REQUIRED)}
 _SUBSTRATE_KEYS = {"ior": ("positive", 1.6), "k": ("nonnegative", 0.0)}
 _RIG_KEYS = {
     "resolution": ("resolution", 256),
@@ -166,12 +171,21 @@ class Checker:
             if not path.is_file():
                 raise UserError(f"{self.source}: '{where}' names a file that does not exist: {path}")
             return str(path)
+        if kind == "layers":
+            if not isinstance(value, list) or not value or len(value) > 200:
+                self.fail(where, "a list of 1 to 200 layer tables { ior = ..., thickness_nm = ... }", value)
+            return [self.table(f"{where}[{i}]", layer, _LAYER_KEYS, {}) for i, layer in enumerate(value)]
         if kind == "ior":
             if isinstance(value, str):
                 from thinfilm.bsdf import material_names
+                from thinfilm.bsdf.materials import parse_index
 
-                if value not in material_names():
-                    self.fail(where, f"a number or one of {', '.join(material_names())}", value)
+                try:
+                    parsed = parse_index(value)
+                except ValueError:
+                    parsed = None
+                if parsed is None or (hasattr(parsed, "name") and value not in material_names()):
+                    self.fail(where, f"a number, 'n+ki' or one of {', '.join(material_names())}", value)
                 return value
             v = self.number(where, value)
             if v <= 0:
@@ -276,7 +290,15 @@ def resolve(raw: dict, c: "Checker") -> dict:
     if profile not in _PROFILE_KEYS:
         c.fail("film.thickness.profile", f"one of {', '.join(_PROFILE_KEYS)}", profile)
     film_rest = {k: v for k, v in film.items() if k != "thickness"}
-    out["film"] = c.table("film", film_rest, _FILM_KEYS, {})
+    if "layers" in film_rest:
+        if "ior" in film_rest:
+            raise UserError(f"{c.source}: 'film.ior' and 'film.layers' exclude each other "
+                            f"(a stack gives each layer its 'ior')")
+        out["film"] = c.table("film", film_rest, _STACK_KEYS, {})
+        if "thickness" not in film:
+            thickness = {"profile": "uniform", "value": out["film"]["layers"][0]["thickness_nm"]}
+    else:
+        out["film"] = c.table("film", film_rest, _FILM_KEYS, {})
     out["film"]["thickness"] = c.table("film.thickness", thickness, _PROFILE_KEYS[profile],
                                        {"profile": profile})
 

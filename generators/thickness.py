@@ -15,7 +15,7 @@ from thinfilm.core.errors import UserError
 
 from .frame import Frame
 
-__all__ = ["thickness_map", "thickness_texture"]
+__all__ = ["thickness_map", "thickness_texture", "film_bsdf"]
 
 
 def _read_bitmap(path: str) -> np.ndarray:
@@ -106,3 +106,14 @@ def thickness_texture(thickness, frame: Frame):
         "nested": {"type": "bitmap", "data": mi.TensorXf(data), "raw": True,
                    "filter_type": "bilinear", "wrap_mode": "clamp"},
     }
+
+
+def film_bsdf(film, thickness, frame: Frame) -> dict:
+    """The ``thinfilm`` BSDF dictionary of a :class:`thinfilm.core.film.Film` whose (top layer's)
+    thickness is ``thickness`` (nm, a number or an (H, W) map over ``frame``). A stack gets
+    its nominal layers and the ``thickness_scale`` that gives its top layer that thickness."""
+    if film.is_single:
+        return film.plugin_dict(thickness=thickness_texture(thickness, frame))
+    scale = film.thickness_scale(thickness)
+    return film.plugin_dict(thickness_scale=thickness_texture(float(scale) if np.ndim(scale) == 0 else scale,
+                                                              frame))

@@ -53,6 +53,9 @@ def _spectral(dataset, options, function):
 
     meta_path = dataset.path / "meta.json"
     film = options.film
+    if not film.is_single:
+        raise UserError(f"{meta_path}: the film is a stack of {len(film.layers)} layers; the spectral "
+                        f"methods model a single film")
     check_dielectric_substrate(film, meta_path)
     n3 = film.effective_substrate_index()
     if not n3 > 1.0:

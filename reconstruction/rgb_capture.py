@@ -73,6 +73,9 @@ def capture_from_dataset(dataset, options) -> RGBCapture:
         warnings.warn(f"{meta_path}: no 'wavelengths_nm', modelling the camera over 400-720 nm in 4 nm steps",
                       ThinfilmWarning, stacklevel=2)
     film = options.film
+    if not film.is_single:
+        raise UserError(f"{meta_path}: the film is a stack of {len(film.layers)} layers; the RGB methods "
+                        f"model a single film")
     for what, (n, _) in (("film index", film.layers[0].n_k(wl)), ("substrate index", film.substrate_n_k(wl))):
         if not np.all(np.isfinite(n)) or np.any(n <= 1.0):
             raise UserError(f"{meta_path}: {what}: refractive index must be > 1, got {float(np.min(n)):g} "
@@ -94,7 +97,7 @@ def capture_from_dataset(dataset, options) -> RGBCapture:
         mask = mask_from_intensity(np.clip(S0.mean(axis=-1), 0.0, None))
     if not mask.any():
         raise UserError(f"{'--mask' if options.mask is not None else exr_path}: the object mask is empty")
-    info = {"film_ior": index_to_json(film.layers[0].index),
+    info = {"film_ior": index_to_json(film.layers[0].material),
             "substrate_ior": film.effective_substrate_index(),
             "thickness_range_nm": [float(lo), float(hi)]}
     return RGBCapture(images, model, mask, (float(lo), float(hi)), dataset.pixel_size or 1.0, info)

@@ -86,9 +86,24 @@ def test_warnings_reach_the_command_line_as_one_line(tmp_path):
     assert err[1].startswith("thinfilm: error: --out") and "Traceback" not in run.stderr
 
 
+def test_stack_specs():
+    spec = load_spec({"film": {"layers": [{"ior": "MgF2", "thickness_nm": 95}, {"ior": "2.1+0.01i",
+                                                                                  "thickness_nm": 62}]}})
+    assert [layer.thickness_nm for layer in spec.film.layers] == [95.0, 62.0]
+    assert spec.film.layers[1].material.k == 0.01
+    assert spec.thickness == {"profile": "uniform", "value": 95.0}   # the top layer's, by default
+    assert load_spec(spec.to_dict()) == spec
+    with pytest.raises(UserError, match="'film.ior' and 'film.layers' exclude each other"):
+        load_spec({"film": {"ior": 1.4, "layers": [{"ior": 1.4, "thickness_nm": 9}]}})
+    with pytest.raises(UserError, match=r"'film.layers\[1\].thickness_nm' must be a number > 0"):
+        load_spec({"film": {"layers": [{"ior": 1.4, "thickness_nm": 9}, {"ior": 2.0, "thickness_nm": -1}]}})
+    with pytest.raises(UserError, match=r"missing key 'film.layers\[0\].ior'"):
+        load_spec({"film": {"layers": [{"thickness_nm": 9}]}})
+
+
 def test_dict_specs_and_named_materials():
     spec = load_spec({"film": {"ior": "MgF2"}, "shape": {"kind": "pyramid"}})
-    assert spec.film.layers[0].index.name == "MgF2" and spec.shape.params["base"] == 2.0
+    assert spec.film.layers[0].material.name == "MgF2" and spec.shape.params["base"] == 2.0
     with pytest.raises(UserError, match="film.ior"):
         load_spec({"film": {"ior": "unobtainium"}})
 

@@ -199,10 +199,11 @@ def parse_index(text: str):
 
 @dataclass(frozen=True)
 class Layer:
-    """One film of a stack: its material (a dispersion model with ``extinction``) and thickness."""
+    """One film of a stack: its material (a dispersion model with ``extinction``) and
+    thickness in nm (``None`` where it is not known, or varies over a surface)."""
 
-    material: Constant | Cauchy | Tabulated
-    thickness_nm: float
+    material: Constant | Cauchy | Tabulated | None
+    thickness_nm: float | None = None
 
     def at(self, wavelength_nm):
         """``(n, k, thickness_nm)`` at the given wavelengths, as :func:`optics.stack_amplitudes`
@@ -211,6 +212,14 @@ class Layer:
             return self.material.n, self.material.k, self.thickness_nm
         return (self.material(wavelength_nm), self.material.extinction(wavelength_nm),
                 self.thickness_nm)
+
+    def n_k(self, wavelength_nm):
+        """Real index and extinction at ``wavelength_nm``, NumPy arrays shaped like it."""
+        if self.material is None:
+            raise ValueError("the layer's index is not known")
+        lam = np.asarray(wavelength_nm, dtype=np.float64)
+        return (np.asarray(self.material(lam), dtype=np.float64) + 0.0 * lam,
+                np.asarray(self.material.extinction(lam), dtype=np.float64) + 0.0 * lam)
 
 
 def parse_stack(stack) -> list[Layer]:
