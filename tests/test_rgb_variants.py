@@ -269,3 +269,39 @@ def test_spectrum_film_index_refused_in_rgb(use_variant):
     bsdf = mi.load_dict({"type": "thinfilm", "thickness": 0.0, "substrate_ior": 1.5,
                          "film_ior": {"type": "spectrum", "value": 1.4}})
     assert np.all(_sample_values(mi, bsdf, [0.0]) > 0)
+
+
+# --- the free-standing sheet ------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("variant", RGB_VARIANTS)
+def test_sheet_reflectance_and_transmittance_in_rgb_match_colour_science(use_variant, variant):
+    """A soap film in RGB: reflected and transmitted colours (the sample weights of each lobe,
+    times its probability) against colour-science's ``thin_film_tmm`` R and T of the
+    free-standing film, converted to linear sRGB under D65."""
+    from colour.phenomena import thin_film_tmm
+
+    mi = use_variant(variant)
+    thetas, thickness = [0.0, 35.0, 60.0], 420.0
+    bsdf = mi.load_dict({"type": "thinfilm_sheet", "thickness": thickness, "film_ior": 1.33})
+    lam = np.arange(360.0, 831.0, 1.0)
+    R, T = thin_film_tmm([1.0, 1.33, 1.0], thickness, lam, np.asarray(thetas))
+    ref_r = _srgb_under_d65(lam, R.mean(axis=-1))[:, 0]
+    ref_t = _srgb_under_d65(lam, T.mean(axis=-1))[:, 0]
+    for k, theta in enumerate(thetas):
+        t = np.radians(theta)
+        got = {}
+        for lobe, s1 in (("r", 0.0), ("t", 0.999999)):
+            if variant.startswith("scalar"):
+                si = mi.SurfaceInteraction3f()
+                si.wi = mi.Vector3f(np.sin(t), 0.0, np.cos(t))
+                si.sh_frame = mi.Frame3f(mi.Vector3f(0, 0, 1))
+                bs, w = bsdf.sample(mi.BSDFContext(), si, s1, mi.Point2f(0.5, 0.5))
+                got[lobe] = np.array([w[0], w[1], w[2]]) * bs.pdf
+            else:
+                si = _interactions(mi, [theta])
+                bs, w = bsdf.sample(mi.BSDFContext(), si, mi.Float(s1), mi.Point2f(0.5, 0.5))
+                got[lobe] = np.array(w, dtype=np.float64).ravel() * np.array(bs.pdf)[0]
+        assert _delta_e(got["r"], ref_r[k]) < 0.5, (theta, got["r"], ref_r[k])
+        assert _delta_e(got["t"], ref_t[k]) < 0.5, (theta, got["t"], ref_t[k])
+        np.testing.assert_allclose(got["r"] + got["t"], 1.0, atol=1e-5)   # lossless: R + T = 1

@@ -62,7 +62,9 @@ transmission component is flagged ``Null`` (it does not bend the ray), and
 ``eval_null_transmission`` returns the transmittance. In polarized variants both lobes
 carry the film's full Mueller matrices, rotated into Mitsuba's Stokes bases as
 Mitsuba's ``dielectric`` does; with thickness 0 the transmission is the identity.
-The optics are :func:`thinfilm.bsdf.optics.sheet_amplitudes`.
+The optics are :func:`thinfilm.bsdf.optics.sheet_amplitudes`. In RGB variants the
+reflectance and transmittance spectra are integrated against the colour basis of
+:mod:`thinfilm.bsdf.rgb` (as the ``thinfilm`` plugin does).
 
 Example
 -------
@@ -78,8 +80,8 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from . import optics
-from .plugin import (_check, _fail, _Film, _like, _mueller, _positive_float, _to_stokes_bases,
+from . import optics, rgb
+from .plugin import (_check, _Film, _like, _mueller, _positive_float, _to_stokes_bases,
                      variant_class)
 
 __all__ = ["sheet_class", "register"]
@@ -92,8 +94,7 @@ class _ThinFilmSheetMixin:
 
     def __init__(self, props):
         mi.BSDF.__init__(self, props)
-        if not (mi.is_spectral or mi.is_monochromatic):
-            _fail(f"needs a spectral or mono variant, not '{mi.variant()}'", _NAME)
+        self.m_rgb = rgb.colour_basis() if mi.is_rgb else None
         self.m_film = _Film(props, plugin=_NAME, default_ior=1.33)
         self.m_ext_ior = mi.Float(_positive_float(props, "ext_ior", 1.0, plugin=_NAME))
         self.m_wavelength = mi.Float(_positive_float(props, "wavelength", 550.0, plugin=_NAME))
@@ -153,9 +154,20 @@ class _ThinFilmSheetMixin:
         """The reflection and transmission values (Mueller matrices in Mitsuba's Stokes bases in
         polarized variants, spectra otherwise) for light leaving along ``si.wi``, and the mean
         unpolarized reflectance and transmittance over the ray's wavelengths."""
-        wavelengths = self._wavelengths(si)
         cos_theta_i = mi.Frame3f.cos_theta(si.wi)
-        refl, trans = self._mueller_entries(si, cos_theta_i, wavelengths, active)
+        if self.m_rgb is not None:
+            # RGB variants: reflection and transmission entries integrated against the colour
+            # basis, as the thinfilm plugin does (thinfilm.bsdf.rgb); unpolarized needs only
+            # the first of each.
+            def entries(lam):
+                refl, trans = self._mueller_entries(si, cos_theta_i, lam, active)
+                return (*refl, *trans) if mi.is_polarized else (refl[0], trans[0])
+
+            count = 8 if mi.is_polarized else 2
+            values = rgb.integrate(self.m_rgb, entries, count, mi.UnpolarizedSpectrum)
+            refl, trans = (values[:4], values[4:]) if mi.is_polarized else ((values[0],), (values[1],))
+        else:
+            refl, trans = self._mueller_entries(si, cos_theta_i, self._wavelengths(si), active)
         R, T = dr.mean(refl[0], axis=0), dr.mean(trans[0], axis=0)
         if not mi.is_polarized:
             return refl[0], trans[0], R, T
