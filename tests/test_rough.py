@@ -190,6 +190,39 @@ def test_alpha_texture_equals_roughconductor(use_variant):
     _close(e_o, e_r)
 
 
+@pytest.mark.parametrize("film", [
+    {"thickness": 480.0, "film_ior": 1.45},
+    {"stack": "1.38:95, 2.1:62, 1.65+0.01i:80"},
+])
+@pytest.mark.parametrize("rough", [ROUGH[0], ROUGH[3]])
+def test_rough_film_is_roughconductor_times_film_reflectance(use_variant, film, rough):
+    """Unpolarized: eval(film) / eval(roughconductor on the bare substrate) is the film's
+    reflectance over the bare substrate's (both from tmm) at the microfacet angle wi·h."""
+    mi = use_variant("llvm_ad_mono")
+    lam, n3 = 550.0, 1.52
+    ours = mi.load_dict({"type": "thinfilm", "substrate_ior": n3, "wavelength": lam, **film, **rough})
+    ref = mi.load_dict({"type": "roughconductor", "eta": n3, "k": 0.0, **rough})
+    ctx = mi.BSDFContext()
+    (si, wo, _, _), = _batches(mi, 512, seed=12)
+    e_o, e_r, wi, wo = _arrays(ours.eval(ctx, si, wo), ref.eval(ctx, si, wo), si.wi, wo)
+    e_o, e_r = e_o.ravel(), e_r.ravel()
+    h = (wi + wo) / np.linalg.norm(wi + wo, axis=0)
+    theta_h = np.degrees(np.arccos(np.clip((wi * h).sum(axis=0), -1, 1)))
+    if "stack" in film:
+        layers = [(1.38, 95.0), (2.1, 62.0), (1.65 + 0.01j, 80.0)]
+    else:
+        layers = [(film["film_ior"], film["thickness"])]
+    ns = [1.0] + [n for n, _ in layers] + [n3]
+    ds = [np.inf] + [d for _, d in layers] + [np.inf]
+    lit = e_r > 1e-4
+    assert lit.sum() > 100
+    for k in np.flatnonzero(lit):
+        th = np.radians(theta_h[k])
+        R_film = 0.5 * sum(tmm.coh_tmm(p, ns, ds, th, lam)["R"] for p in "sp")
+        R_bare = 0.5 * sum(tmm.coh_tmm(p, [1.0, n3], [np.inf, np.inf], th, lam)["R"] for p in "sp")
+        assert e_o[k] / e_r[k] == pytest.approx(R_film / R_bare, rel=2e-4, abs=1e-5)
+
+
 def _sphere_scene(mi, bsdf, res=24, spp=4):
     return mi.load_dict({
         "type": "scene",

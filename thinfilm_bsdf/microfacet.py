@@ -81,12 +81,16 @@ class Roughness:
         if self.anisotropic:
             flags = flags | mi.BSDFFlags.Anisotropic
         self.flags = flags
-        self.make_opaque()
 
-    def make_opaque(self):
-        for value in self.values.values():
-            if not isinstance(value, mi.Texture):
-                dr.make_opaque(value)
+    def scalars(self):
+        """The exposed scalar roughness values by name (none for a smooth film)."""
+        if not self.is_rough:
+            return {}
+        return {n: self.values[n] for n in self.names if not isinstance(self.values[n], mi.Texture)}
+
+    def opaque(self):
+        """The scalar roughness values, to be made opaque (kernel inputs, not literals)."""
+        return list(self.scalars().values())
 
     def traverse(self, callback):
         """Expose ``alpha`` (or ``alpha_u``, ``alpha_v``) of a rough film, as ``roughconductor``."""
@@ -96,17 +100,9 @@ class Roughness:
             callback.put(name, self.values[name],
                          mi.ParamFlags.Differentiable | mi.ParamFlags.Discontinuous)
 
-    def parameters_changed(self):
-        from .plugin import _fail
-
-        for name in self.names:
-            value = self.values[name]
-            if isinstance(value, mi.Texture):
-                continue
-            v = dr.ravel(value)
-            if bool(dr.any((v < 0) | (v != v))):
-                _fail(f"parameter '{name}' must be >= 0, got {value}")
-        self.make_opaque()
+    def checks(self):
+        """``(name, value, allow_zero)`` for the plugin's check of updated scalar parameters."""
+        return [(name, value, True) for name, value in self.scalars().items()]
 
     def distribution(self, si, active):
         """Mitsuba's microfacet distribution at ``si`` (roughness textures read with ``eval_1``)."""
@@ -142,6 +138,8 @@ def _film_fresnel(bsdf, ctx, si, wo, m, active):
     Mueller matrix at ``cos θ = wo_hat·m``, light arriving along ``-wo_hat`` and leaving along
     ``wi_hat``, rotated from the frame of the plane of reflection into Mitsuba's Stokes bases.
     """
+    from .plugin import _mueller, _to_stokes_bases
+
     wavelengths = bsdf._wavelengths(si)
     if not mi.is_polarized:
         return bsdf._mueller_entries(si, dr.dot(si.wi, m), wavelengths, active)[0]
@@ -150,27 +148,8 @@ def _film_fresnel(bsdf, ctx, si, wo, m, active):
     wo_hat = wo if radiance else si.wi
     wi_hat = si.wi if radiance else wo
     a, b, c, s = bsdf._mueller_entries(si, dr.dot(wo_hat, m), wavelengths, active)
-    value = dr.zeros(mi.Spectrum)
-    value[0, 0] = a
-    value[0, 1] = b
-    value[1, 0] = b
-    value[1, 1] = a
-    value[2, 2] = c
-    value[2, 3] = s
-    value[3, 2] = -s
-    value[3, 3] = c
-
-    # The Stokes reference axis of this matrix is perpendicular to the plane of reflection.
-    s_in = dr.cross(m, -wo_hat)
-    s_out = dr.cross(m, wi_hat)
-    collinear = dr.all(s_in == mi.Vector3f(0))
-    s_in = dr.select(collinear, mi.Vector3f(1, 0, 0), dr.normalize(s_in))
-    s_out = dr.select(collinear, mi.Vector3f(1, 0, 0), dr.normalize(s_out))
-    return mi.mueller.rotate_mueller_basis(
-        value,
-        -wo_hat, s_in, mi.mueller.stokes_basis(-wo_hat),
-        wi_hat, s_out, mi.mueller.stokes_basis(wi_hat),
-    )
+    # The Stokes reference axis of this matrix is perpendicular to the plane of reflection about m.
+    return _to_stokes_bases(_mueller(a, b, c, s), wo_hat, wi_hat, normal=m)
 
 
 def _scaled(F, weight, active):

@@ -350,11 +350,13 @@ def _mueller(a, b, c, s):
     return value
 
 
-def _to_stokes_bases(value, wo_hat, wi_hat):
+def _to_stokes_bases(value, wo_hat, wi_hat, normal=None):
     """Rotate a Mueller matrix given in the s/p frame (Stokes reference axis perpendicular to
     the plane of incidence) into Mitsuba's implicit Stokes bases of ``-wo_hat`` (incoming
-    light) and ``wi_hat`` (outgoing light), as Mitsuba's ``conductor`` and ``dielectric`` do."""
-    n = mi.Vector3f(0, 0, 1)
+    light) and ``wi_hat`` (outgoing light), as Mitsuba's ``conductor`` and ``dielectric`` do.
+    ``normal`` is the reflecting surface's normal: the shading normal by default, a
+    microfacet normal in ``roughconductor``'s way."""
+    n = mi.Vector3f(0, 0, 1) if normal is None else normal
     s_in = dr.cross(n, -wo_hat)
     s_out = dr.cross(n, wi_hat)
     collinear = dr.all(s_in == mi.Vector3f(0))
@@ -399,8 +401,8 @@ class _ThinFilmMixin:
     def _make_opaque(self):
         # Opaque scalars become kernel inputs, not literals: changing them
         # (a wavelength sweep, a thickness fit) reuses the compiled kernel.
-        dr.make_opaque(*self.m_film.opaque(), self.m_substrate_ior, self.m_substrate_k,
-                       self.m_ext_ior, self.m_wavelength)
+        dr.make_opaque(*self.m_film.opaque(), *self.m_rough.opaque(), self.m_substrate_ior,
+                       self.m_substrate_k, self.m_ext_ior, self.m_wavelength)
 
     def traverse(self, callback):
         self.m_film.traverse(callback)
@@ -411,13 +413,12 @@ class _ThinFilmMixin:
         self.m_rough.traverse(callback)
 
     def parameters_changed(self, keys=[]):
-        _check("thinfilm", self.m_film.checks() + [
+        _check("thinfilm", self.m_film.checks() + self.m_rough.checks() + [
             ("substrate_ior", self.m_substrate_ior, False),
             ("substrate_k", self.m_substrate_k, True),
             ("ext_ior", self.m_ext_ior, False),
             ("wavelength", self.m_wavelength, False),
         ])
-        self.m_rough.parameters_changed()
         self._make_opaque()
 
     # -- physics ------------------------------------------------------------
