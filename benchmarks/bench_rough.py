@@ -33,22 +33,32 @@ def scene_dict(mi, bsdf, res, spp):
 
 
 def render_time(mi, dr, scene, seed):
-    t0 = time.perf_counter()
+    """Wall-clock and CPU (all threads of this process) seconds of one render."""
+    t0, c0 = time.perf_counter(), time.process_time()
     img = mi.render(scene, seed=seed)
     dr.eval(img)
     dr.sync_thread()
-    return time.perf_counter() - t0
+    return time.perf_counter() - t0, time.process_time() - c0
 
 
 def compare(mi, dr, scenes, repeats):
-    """Median render time of each scene, warmed up, rendered in alternation."""
+    """(wall, CPU) times of each scene's renders (warmed up, rendered in alternation), by name."""
     for scene in scenes.values():
         render_time(mi, dr, scene, 0)  # trace and compile
     times = {name: [] for name in scenes}
     for i in range(repeats):
         for name, scene in scenes.items():
             times[name].append(render_time(mi, dr, scene, i + 1))
-    return {name: statistics.median(t) for name, t in times.items()}
+    return times
+
+
+def ratios(times, name, baseline, which):
+    """Ratio of the medians, and the median of the ratios of renders done one after the other
+    (less sensitive to load that drifts during the run); ``which`` 0 for wall, 1 for CPU time."""
+    a = [t[which] for t in times[name]]
+    b = [t[which] for t in times[baseline]]
+    paired = statistics.median(x / y for x, y in zip(a, b))
+    return statistics.median(a) / statistics.median(b), paired
 
 
 def main():
@@ -79,16 +89,20 @@ def main():
         scenes["conductor"] = {"type": "conductor", "eta": 1.6, "k": 0.0}
         scenes["smooth thinfilm"] = film
     scenes = {name: mi.load_dict(scene_dict(mi, bsdf, args.res, args.spp)) for name, bsdf in scenes.items()}
-    t = compare(mi, dr, scenes, args.repeats)
+    times = compare(mi, dr, scenes, args.repeats)
 
     print(f"variant {args.variant}, {args.res}x{args.res}, {args.spp} spp, median of {args.repeats} "
           f"(alternated), {args.distribution} alpha {args.alpha}")
-    for name, seconds in t.items():
-        print(f"  {name:16s}: {seconds * 1e3:8.1f} ms")
-    print(f"  ratio rough thinfilm / roughconductor = {t['rough thinfilm'] / t['roughconductor']:.3f}"
-          "   (bar <= 1.3, goal <= 1.1)")
+    for name, t in times.items():
+        wall, cpu = [x[0] for x in t], [x[1] for x in t]
+        print(f"  {name:16s}: wall {statistics.median(wall) * 1e3:8.1f} ms (min {min(wall) * 1e3:7.1f}),"
+              f" CPU {statistics.median(cpu) * 1e3:8.1f} ms (min {min(cpu) * 1e3:7.1f})")
+    pairs = [("rough thinfilm", "roughconductor", "   (bar <= 1.3, goal <= 1.1)")]
     if args.smooth:
-        print(f"  ratio smooth thinfilm / conductor     = {t['smooth thinfilm'] / t['conductor']:.3f}")
+        pairs.append(("smooth thinfilm", "conductor", ""))
+    for name, baseline, note in pairs:
+        (w, wp), (c, cp) = ratios(times, name, baseline, 0), ratios(times, name, baseline, 1)
+        print(f"  {name} / {baseline}: wall {w:.3f} (paired {wp:.3f}), CPU {c:.3f} (paired {cp:.3f}){note}")
 
 
 if __name__ == "__main__":

@@ -18,6 +18,14 @@ With ``thickness = 0`` a rough film is therefore ``roughconductor`` with
 through the plugin's ``_mueller_entries(si, cos_theta, wavelengths, active)`` and
 ``_wavelengths(si)``, so film stacks are rough in the same way.
 
+Example
+-------
+>>> import mitsuba as mi                                    # doctest: +SKIP
+>>> mi.set_variant("llvm_ad_spectral_polarized")            # doctest: +SKIP
+>>> import thinfilm.bsdf; thinfilm.bsdf.register()          # doctest: +SKIP
+>>> rough = mi.load_dict({"type": "thinfilm", "thickness": 400.0, "film_ior": "MgF2",
+...                       "alpha": 0.15, "distribution": "ggx"})  # doctest: +SKIP
+
 References
 ----------
 B. Walter, S. Marschner, H. Li, K. Torrance, "Microfacet models for refraction through
