@@ -1,4 +1,5 @@
-"""Mitsuba 3 plugin ``thinfilm``: a smooth surface coated with one thin film or a stack of films.
+"""Mitsuba 3 plugin ``thinfilm``: a smooth or rough surface coated with one thin film or a
+stack of films.
 
 .. list-table::
    :header-rows: 1
@@ -63,12 +64,37 @@
      - Wavelength in nm used in ``mono`` variants (which carry none). Changing it through
        ``mi.traverse`` reuses the compiled kernel. Not used in spectral and RGB variants.
      - ``wavelength``, not differentiable
+   * - ``alpha``
+     - float or texture
+     - 0
+     - Microfacet roughness, as ``roughconductor``'s. 0 is a smooth film (a delta lobe).
+     - ``alpha`` when > 0 or a texture, differentiable, discontinuous
+   * - ``alpha_u``, ``alpha_v``
+     - float or texture
+     - (none)
+     - Anisotropic roughness along the tangent and the bitangent (instead of ``alpha``).
+     - ``alpha_u``, ``alpha_v``, as ``alpha``
+   * - ``distribution``
+     - string
+     - ``"ggx"``
+     - Microfacet distribution, ``"ggx"`` or ``"beckmann"`` (``roughconductor``'s default is
+       ``"beckmann"``).
+     - no
+   * - ``sample_visible``
+     - bool
+     - true
+     - Sample the visible normals (Heitz & d'Eon) rather than all normals.
+     - no
 
-Reflection is a delta lobe (mirror direction); transmission is not modelled (the film sits
-on an opaque or index-matched substrate; see ``thinfilm_sheet`` for free-standing films).
-In polarized variants the BSDF returns the full Mueller matrix of the film (both amplitudes
-and their phase difference), rotated into Mitsuba's Stokes bases in the same way as
-Mitsuba's ``conductor``. With ``thickness = 0`` it equals ``conductor`` with
+A smooth film (``alpha = 0``) reflects in the mirror direction only (a delta lobe). A rough
+film is Mitsuba's ``roughconductor`` with its Fresnel term replaced by the film's Mueller
+matrix at the microfacet's angle of incidence (see :mod:`thinfilm.bsdf.microfacet`); a film
+loaded smooth stays smooth (``alpha`` is then not exposed). Transmission is not modelled (the
+film sits on an opaque or index-matched substrate; see ``thinfilm_sheet`` for free-standing
+films). In polarized variants the BSDF returns the full Mueller matrix of the film (both
+amplitudes and their phase difference), rotated into Mitsuba's Stokes bases in the same way
+as Mitsuba's ``conductor`` (rough: ``roughconductor``). With ``thickness = 0`` it equals
+``conductor`` (rough: ``roughconductor`` with the same roughness parameters) with
 ``eta = substrate_ior, k = substrate_k``. The optics are
 :func:`thinfilm.bsdf.optics.stack_amplitudes` (one film is the one-layer stack).
 
@@ -118,7 +144,7 @@ import numbers
 import drjit as dr
 import mitsuba as mi
 
-from . import optics, rgb
+from . import microfacet, optics, rgb
 from .materials import Constant, as_dispersion, parse_stack
 
 __all__ = ["bsdf_class", "register", "variant_class"]
@@ -355,11 +381,13 @@ def _mueller(a, b, c, s):
     return value
 
 
-def _to_stokes_bases(value, wo_hat, wi_hat):
+def _to_stokes_bases(value, wo_hat, wi_hat, normal=None):
     """Rotate a Mueller matrix given in the s/p frame (Stokes reference axis perpendicular to
     the plane of incidence) into Mitsuba's implicit Stokes bases of ``-wo_hat`` (incoming
-    light) and ``wi_hat`` (outgoing light), as Mitsuba's ``conductor`` and ``dielectric`` do."""
-    n = mi.Vector3f(0, 0, 1)
+    light) and ``wi_hat`` (outgoing light), as Mitsuba's ``conductor`` and ``dielectric`` do.
+    ``normal`` is the reflecting surface's normal: the shading normal by default, a
+    microfacet normal in ``roughconductor``'s way."""
+    n = mi.Vector3f(0, 0, 1) if normal is None else normal
     s_in = dr.cross(n, -wo_hat)
     s_out = dr.cross(n, wi_hat)
     collinear = dr.all(s_in == mi.Vector3f(0))
@@ -390,7 +418,11 @@ class _ThinFilmMixin:
         self.m_ext_ior = mi.Float(_positive_float(props, "ext_ior", 1.0))
         self.m_wavelength = mi.Float(_positive_float(props, "wavelength", 550.0))
 
-        flags = mi.BSDFFlags.DeltaReflection | mi.BSDFFlags.FrontSide
+        self.m_rough = microfacet.Roughness(props)
+        if self.m_rough.is_rough:
+            flags = self.m_rough.flags
+        else:
+            flags = mi.BSDFFlags.DeltaReflection | mi.BSDFFlags.FrontSide
         self.m_components = [flags]
         self.m_flags = flags
         self._make_opaque()
@@ -400,8 +432,8 @@ class _ThinFilmMixin:
     def _make_opaque(self):
         # Opaque scalars become kernel inputs, not literals: changing them
         # (a wavelength sweep, a thickness fit) reuses the compiled kernel.
-        dr.make_opaque(*self.m_film.opaque(), self.m_substrate_ior, self.m_substrate_k,
-                       self.m_ext_ior, self.m_wavelength)
+        dr.make_opaque(*self.m_film.opaque(), *self.m_rough.opaque(), self.m_substrate_ior,
+                       self.m_substrate_k, self.m_ext_ior, self.m_wavelength)
 
     def traverse(self, callback):
         self.m_film.traverse(callback)
@@ -409,9 +441,10 @@ class _ThinFilmMixin:
         callback.put("substrate_k", self.m_substrate_k, mi.ParamFlags.Differentiable)
         callback.put("ext_ior", self.m_ext_ior, mi.ParamFlags.NonDifferentiable)
         callback.put("wavelength", self.m_wavelength, mi.ParamFlags.NonDifferentiable)
+        self.m_rough.traverse(callback)
 
     def parameters_changed(self, keys=[]):
-        _check("thinfilm", self.m_film.checks() + [
+        _check("thinfilm", self.m_film.checks() + self.m_rough.checks() + [
             ("substrate_ior", self.m_substrate_ior, False),
             ("substrate_k", self.m_substrate_k, True),
             ("ext_ior", self.m_ext_ior, False),
@@ -476,6 +509,8 @@ class _ThinFilmMixin:
     # -- BSDF interface -----------------------------------------------------
 
     def sample(self, ctx, si, sample1, sample2, active=True):
+        if self.m_rough.is_rough:
+            return microfacet.sample(self, ctx, si, sample2, active)
         cos_theta_i = mi.Frame3f.cos_theta(si.wi)
         active = active & (cos_theta_i > 0)
         bs = dr.zeros(mi.BSDFSample3f)
@@ -490,18 +525,25 @@ class _ThinFilmMixin:
         return bs, dr.select(active, value, dr.zeros(mi.Spectrum))
 
     def eval(self, ctx, si, wo, active=True):
+        if self.m_rough.is_rough:
+            return microfacet.evaluate(self, ctx, si, wo, active)
         return dr.zeros(mi.Spectrum)
 
     def pdf(self, ctx, si, wo, active=True):
+        if self.m_rough.is_rough:
+            return microfacet.pdf(self, ctx, si, wo, active)
         return mi.Float(0.0)
 
     def eval_pdf(self, ctx, si, wo, active=True):
+        if self.m_rough.is_rough:
+            return microfacet.evaluate_pdf(self, ctx, si, wo, active)
         return dr.zeros(mi.Spectrum), mi.Float(0.0)
 
     def to_string(self):
         return (f"ThinFilmBSDF[{self.m_film.describe()}, "
                 f"substrate_ior={self.m_substrate_ior}, substrate_k={self.m_substrate_k}, "
-                f"ext_ior={self.m_ext_ior}, wavelength={self.m_wavelength} nm]")
+                f"ext_ior={self.m_ext_ior}, wavelength={self.m_wavelength} nm"
+                + (f", {self.m_rough.describe()}" if self.m_rough.is_rough else "") + "]")
 
 
 _CLASSES: dict = {}
