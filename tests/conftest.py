@@ -2,7 +2,9 @@
 
 In Mitsuba's manner, a test asks for the variant it runs in by a fixture: ``variant_NAME``
 for one variant (``variant_llvm_ad_mono_polarized`` …), ``polarized_variant`` /
-``unpolarized_variant`` to run over several. The fixture sets the variant, registers the
+``unpolarized_variant`` to run over several, ``mitsuba_variant`` with an indirect
+parametrization for a list of its own. A test that compares two variants takes one by
+fixture and enters the other with the :func:`variant` context manager. The fixture sets the variant, registers the
 project's plugins, yields the ``mitsuba`` module, then flushes Dr.Jit's memory cache and
 restores the variant that was set before, so no variant leaks from one test into the next.
 ``render_variant_module`` does the same for a whole module (the capture generator's
@@ -56,11 +58,11 @@ for _name in ("llvm_ad_mono_polarized", "llvm_ad_mono", "llvm_ad_spectral_polari
 
 
 @pytest.fixture
-def use_variant():
-    """Call with a variant name: sets it and registers the plugins for this test (restored
-    after it); returns the ``mitsuba`` module."""
-    with contextlib.ExitStack() as stack:
-        yield lambda name: stack.enter_context(variant(name))
+def mitsuba_variant(request):
+    """The variant named by an indirect parametrization
+    (``@pytest.mark.parametrize("mitsuba_variant", [...], indirect=True)``)."""
+    with variant(request.param) as mi:
+        yield mi
 
 
 @pytest.fixture(params=["llvm_ad_mono_polarized", "llvm_ad_spectral_polarized", "scalar_spectral_polarized"])

@@ -55,8 +55,8 @@ def _stokes(mi, scene):
 
 
 @pytest.mark.parametrize("theta", [15.0, 45.0, 70.0])
-def test_mono_polarized_render_matches_tmm(use_variant, theta):
-    mi = use_variant("llvm_ad_mono_polarized")
+def test_mono_polarized_render_matches_tmm(variant_llvm_ad_mono_polarized, theta):
+    mi = variant_llvm_ad_mono_polarized
     scene = _plane_scene(mi, {"type": "thinfilm", "film_ior": 1.37, "substrate_ior": 1.6}, theta, 0.0)
     params = mi.traverse(scene)
     for lam in (420.0, 550.0, 690.0):
@@ -74,9 +74,9 @@ def test_mono_polarized_render_matches_tmm(use_variant, theta):
 
 
 @pytest.mark.parametrize("phi", [0.0, 30.0, 120.0, 200.0, 315.0])
-def test_stokes_frame_peak_at_s_direction(use_variant, phi):
+def test_stokes_frame_peak_at_s_direction(variant_llvm_ad_mono_polarized, phi):
     """DESIGN.md's frame: behind a polarizer at α the intensity peaks at α = φ + 90°."""
-    mi = use_variant("llvm_ad_mono_polarized")
+    mi = variant_llvm_ad_mono_polarized
     scene = _plane_scene(mi, {"type": "thinfilm", "thickness": 300.0, "wavelength": 500.0}, 50.0, phi)
     S0, S1, S2, _ = _stokes(mi, scene)
     alpha = np.radians(np.arange(0.0, 180.0, 0.25))
@@ -86,8 +86,8 @@ def test_stokes_frame_peak_at_s_direction(use_variant, phi):
     assert abs((peak - expected + 90.0) % 180.0 - 90.0) <= 0.25
 
 
-def test_thickness_texture_varies_over_surface(use_variant):
-    mi = use_variant("llvm_ad_mono_polarized")
+def test_thickness_texture_varies_over_surface(variant_llvm_ad_mono_polarized):
+    mi = variant_llvm_ad_mono_polarized
     tex = mi.Bitmap(np.array([[200.0, 600.0]], dtype=np.float32))
     bsdf = {"type": "thinfilm", "wavelength": 520.0,
             "thickness": {"type": "bitmap", "bitmap": tex, "raw": True, "filter_type": "nearest"}}
@@ -148,10 +148,10 @@ def test_thickness_zero_mueller_equals_conductor(polarized_variant, substrate, m
 
 
 @pytest.mark.parametrize("substrate", [(1.6, 0.0), (0.27, 3.4)])
-def test_thickness_zero_render_equals_conductor(use_variant, substrate):
+def test_thickness_zero_render_equals_conductor(variant_llvm_ad_spectral_polarized, substrate):
     """Spectral polarized render, same seed: thinfilm(d=0) and conductor agree pixel by pixel,
     in every Stokes channel (random wavelengths, so the spectral path is exercised)."""
-    mi = use_variant("llvm_ad_spectral_polarized")
+    mi = variant_llvm_ad_spectral_polarized
     n3, k3 = substrate
 
     def render(bsdf):
@@ -195,8 +195,8 @@ def test_unpolarized_value_is_mean_reflectance(unpolarized_variant):
                 assert abs(v - ref) < 2e-5
 
 
-def test_named_film_material_uses_its_dispersion(use_variant):
-    mi = use_variant("llvm_ad_spectral_polarized")
+def test_named_film_material_uses_its_dispersion(variant_llvm_ad_spectral_polarized):
+    mi = variant_llvm_ad_spectral_polarized
     from thinfilm.bsdf import named_material
 
     bsdf = mi.load_dict({"type": "thinfilm", "thickness": 350.0, "film_ior": "MgF2", "substrate_ior": 1.6})
@@ -217,8 +217,8 @@ def test_named_film_material_uses_its_dispersion(use_variant):
 # --- parameters, kernels, errors ---------------------------------------------------------------
 
 
-def test_wavelength_sweep_reuses_compiled_kernel(use_variant):
-    mi = use_variant("llvm_ad_mono_polarized")
+def test_wavelength_sweep_reuses_compiled_kernel(variant_llvm_ad_mono_polarized):
+    mi = variant_llvm_ad_mono_polarized
     import drjit as dr
 
     scene = _plane_scene(mi, {"type": "thinfilm"}, 40.0, 10.0, res=16)
@@ -249,14 +249,14 @@ def test_wavelength_sweep_reuses_compiled_kernel(use_variant):
     ({"film_ior": "unobtainium"}, "unknown material 'unobtainium'"),
     ({"wavelength": 0.0}, "'wavelength' must be > 0"),
 ])
-def test_bad_parameters_raise_one_clear_error(use_variant, bad, message):
-    mi = use_variant("llvm_ad_mono_polarized")
+def test_bad_parameters_raise_one_clear_error(variant_llvm_ad_mono_polarized, bad, message):
+    mi = variant_llvm_ad_mono_polarized
     with pytest.raises(Exception, match=message):
         mi.load_dict({"type": "thinfilm", **bad})
 
 
-def test_bad_parameter_update_is_refused(use_variant):
-    mi = use_variant("llvm_ad_mono_polarized")
+def test_bad_parameter_update_is_refused(variant_llvm_ad_mono_polarized):
+    mi = variant_llvm_ad_mono_polarized
     scene = _plane_scene(mi, {"type": "thinfilm"}, 30.0, 0.0)
     params = mi.traverse(scene)
     params["plane.bsdf.thickness"] = -1.0
@@ -264,8 +264,8 @@ def test_bad_parameter_update_is_refused(use_variant):
         params.update()
 
 
-def test_loads_from_xml(use_variant):
-    mi = use_variant("llvm_ad_spectral_polarized")
+def test_loads_from_xml(variant_llvm_ad_spectral_polarized):
+    mi = variant_llvm_ad_spectral_polarized
     bsdf = mi.load_string(
         '<bsdf version="3.0.0" type="thinfilm">'
         '<float name="thickness" value="420"/><string name="film_ior" value="MgF2"/>'
@@ -273,9 +273,9 @@ def test_loads_from_xml(use_variant):
     assert "thickness=[420" in str(bsdf) and "MgF2" in str(bsdf)
 
 
-def test_spectrum_film_index(use_variant):
+def test_spectrum_film_index(variant_llvm_ad_spectral_polarized):
     """film_ior given as a Mitsuba spectrum is evaluated at each ray's wavelengths."""
-    mi = use_variant("llvm_ad_spectral_polarized")
+    mi = variant_llvm_ad_spectral_polarized
     bsdf = mi.load_dict({"type": "thinfilm", "thickness": 500.0, "substrate_ior": 1.6,
                          "film_ior": {"type": "spectrum", "value": [(360.0, 1.42), (830.0, 1.34)]}})
     si = _random_interactions(mi, 16, seed=2)[0]
@@ -290,9 +290,9 @@ def test_spectrum_film_index(use_variant):
             assert abs(m00[ch, k] - ref) < 2e-5
 
 
-def test_thickness_gradient_matches_finite_differences(use_variant):
+def test_thickness_gradient_matches_finite_differences(variant_llvm_ad_mono_polarized):
     """Dr.Jit AD through the plugin (as the reconstruction forward models use it)."""
-    mi = use_variant("llvm_ad_mono_polarized")
+    mi = variant_llvm_ad_mono_polarized
     import drjit as dr
 
     bsdf = mi.load_dict({"type": "thinfilm", "thickness": 420.0, "wavelength": 530.0})
@@ -317,8 +317,8 @@ def test_thickness_gradient_matches_finite_differences(use_variant):
     np.testing.assert_allclose(grad, fd, rtol=2e-2, atol=2e-6)
 
 
-def test_exterior_index_in_plugin_matches_tmm(use_variant):
-    mi = use_variant("llvm_ad_mono_polarized")
+def test_exterior_index_in_plugin_matches_tmm(variant_llvm_ad_mono_polarized):
+    mi = variant_llvm_ad_mono_polarized
     theta = 35.0
     scene = _plane_scene(mi, {"type": "thinfilm", "thickness": 300.0, "film_ior": 1.45,
                               "substrate_ior": 1.7, "ext_ior": 1.33, "wavelength": 600.0}, theta, 0.0)

@@ -9,6 +9,7 @@ Mitsuba's ``conductor`` in RGB.
 
 import numpy as np
 import pytest
+from conftest import variant
 
 RGB_VARIANTS = ["scalar_rgb", "llvm_ad_rgb"]
 
@@ -90,9 +91,9 @@ def _sample_values(mi, bsdf, theta_deg):
 # --- loading and rendering -----------------------------------------------------------
 
 
-@pytest.mark.parametrize("variant", RGB_VARIANTS)
-def test_loads_and_renders_in_rgb_variants(use_variant, variant):
-    mi = use_variant(variant)
+@pytest.mark.parametrize("mitsuba_variant", RGB_VARIANTS, indirect=True)
+def test_loads_and_renders_in_rgb_variants(mitsuba_variant):
+    mi = mitsuba_variant
     bsdf = mi.load_dict({"type": "thinfilm", "thickness": 380.0, "film_ior": "MgF2", "substrate_ior": 1.6})
     value = _sample_values(mi, bsdf, [0.0, 45.0, 80.0])
     assert np.all(np.isfinite(value)) and np.all(value > 0) and np.all(value < 1)
@@ -111,10 +112,11 @@ def test_loads_and_renders_in_rgb_variants(use_variant, variant):
     assert img[3:5, 3:5].mean() > 0.01  # the sphere reflects the sky
 
 
-@pytest.mark.parametrize("variant", RGB_VARIANTS)
-def test_cornell_box_with_thin_film_sphere(use_variant, variant):
+@pytest.mark.parametrize("mitsuba_variant", RGB_VARIANTS, indirect=True)
+def test_cornell_box_with_thin_film_sphere(mitsuba_variant):
     """Mitsuba's own Cornell box, with a thin-film sphere, loads and renders."""
-    mi = use_variant(variant)
+    mi = mitsuba_variant
+    variant = mi.variant()
     scene = mi.cornell_box()
     scene["sensor"]["film"]["width"] = scene["sensor"]["film"]["height"] = 8 if variant.startswith("scalar") else 16
     scene["sensor"]["sampler"]["sample_count"] = 2 if variant.startswith("scalar") else 4
@@ -133,13 +135,13 @@ THICKNESSES = [0.0, 120.0, 250.0, 400.0, 550.0, 700.0, 900.0]
 
 
 @pytest.mark.parametrize("film_ior, substrate_ior", [(1.37, 1.6), (1.33, 1.0), (2.0, 1.5)])
-def test_bsdf_colour_matches_colour_science(use_variant, film_ior, substrate_ior):
+def test_bsdf_colour_matches_colour_science(variant_llvm_ad_rgb, film_ior, substrate_ior):
     """Per-direction RGB values against colour-science's integral of the tmm spectrum (ΔE*ab).
 
     colour-science tabulates the CMFs and D65 at 1 nm (Mitsuba at 5 nm) and derives its own
     sRGB matrix, so this bounds table and quadrature differences together.
     """
-    mi = use_variant("llvm_ad_rgb")
+    mi = variant_llvm_ad_rgb
     bsdf = mi.load_dict({"type": "thinfilm", "film_ior": film_ior, "substrate_ior": substrate_ior})
     params = mi.traverse(bsdf)
     ours = []
@@ -154,12 +156,12 @@ def test_bsdf_colour_matches_colour_science(use_variant, film_ior, substrate_ior
 
 
 @pytest.mark.parametrize("stack", ["1.38:99.6, 2.1:65.5", "2.3:60, 1.38:95, 2.3:60, 1.38:95"])
-def test_stack_colour_matches_colour_science(use_variant, stack):
+def test_stack_colour_matches_colour_science(variant_llvm_ad_rgb, stack):
     """A film stack (anti-reflection coating, dielectric mirror) in RGB against colour-science's
     ``multilayer_tmm`` spectrum converted to sRGB by colour-science."""
     from colour.phenomena import multilayer_tmm
 
-    mi = use_variant("llvm_ad_rgb")
+    mi = variant_llvm_ad_rgb
     bsdf = mi.load_dict({"type": "thinfilm", "stack": stack, "substrate_ior": 1.52})
     ours = _sample_values(mi, bsdf, THETAS)
     layers = [[float(v) for v in layer.split(":")] for layer in stack.split(",")]
@@ -203,7 +205,7 @@ def _plane_colours(mi, thetas, thicknesses, bsdf, spp):
     return np.array(out)
 
 
-def test_rgb_render_matches_mitsuba_spectral_render(use_variant):
+def test_rgb_render_matches_mitsuba_spectral_render(variant_llvm_ad_spectral):
     """A render in llvm_ad_rgb against Mitsuba's own spectral render of the same scene, in ΔE*ab.
 
     Each plane image has one colour; its mean over 16x16 pixels at 1024 spp (1M wavelength
@@ -211,10 +213,9 @@ def test_rgb_render_matches_mitsuba_spectral_render(use_variant):
     """
     bsdf = {"type": "thinfilm", "film_ior": 1.37, "substrate_ior": 1.6}
     thetas, thicknesses = [0.0, 40.0, 70.0], [150.0, 400.0, 650.0]
-    mi = use_variant("llvm_ad_spectral")
-    spectral = _plane_colours(mi, thetas, thicknesses, bsdf, spp=1024)
-    mi = use_variant("llvm_ad_rgb")
-    rgb = _plane_colours(mi, thetas, thicknesses, bsdf, spp=4)
+    spectral = _plane_colours(variant_llvm_ad_spectral, thetas, thicknesses, bsdf, spp=1024)
+    with variant("llvm_ad_rgb") as mi:
+        rgb = _plane_colours(mi, thetas, thicknesses, bsdf, spp=4)
     dE = _delta_e(rgb, spectral)
     assert dE.mean() <= 0.5 and dE.max() <= 1.0, dE
 
@@ -222,21 +223,21 @@ def test_rgb_render_matches_mitsuba_spectral_render(use_variant):
 # --- normalisation and limits ---------------------------------------------------------
 
 
-@pytest.mark.parametrize("variant", RGB_VARIANTS)
-def test_unit_reflectance_is_white(use_variant, variant):
+@pytest.mark.parametrize("mitsuba_variant", RGB_VARIANTS, indirect=True)
+def test_unit_reflectance_is_white(mitsuba_variant):
     """A lossless film on a (nearly) perfect mirror reflects R = 1 at every wavelength: white."""
-    mi = use_variant(variant)
+    mi = mitsuba_variant
     bsdf = mi.load_dict({"type": "thinfilm", "thickness": 530.0, "film_ior": 1.45,
                          "substrate_ior": 1.0, "substrate_k": 1e4})
     value = _sample_values(mi, bsdf, [0.0, 35.0, 75.0])
     np.testing.assert_allclose(value, 1.0, atol=1e-4)
 
 
-@pytest.mark.parametrize("variant", RGB_VARIANTS)
+@pytest.mark.parametrize("mitsuba_variant", RGB_VARIANTS, indirect=True)
 @pytest.mark.parametrize("eta, k", [(1.6, 0.0), (0.2, 3.0)])
-def test_thickness_zero_equals_conductor_in_rgb(use_variant, variant, eta, k):
+def test_thickness_zero_equals_conductor_in_rgb(mitsuba_variant, eta, k):
     """Without a film and with a non-dispersive substrate, R(λ) is flat: its colour is Mitsuba's conductor."""
-    mi = use_variant(variant)
+    mi = mitsuba_variant
     film = mi.load_dict({"type": "thinfilm", "thickness": 0.0, "substrate_ior": eta, "substrate_k": k})
     conductor = mi.load_dict({"type": "conductor", "eta": eta, "k": k})
     thetas = [0.0, 30.0, 60.0, 85.0]
@@ -244,11 +245,10 @@ def test_thickness_zero_equals_conductor_in_rgb(use_variant, variant, eta, k):
                                rtol=2e-5, atol=1e-7)
 
 
-def test_colour_tables_match_colour_science(use_variant):
+def test_colour_tables_match_colour_science(variant_llvm_ad_rgb):
     """The tables read from Mitsuba are the CIE 1931 2° CMFs, D65 and the sRGB matrix."""
     import colour
 
-    mi = use_variant("llvm_ad_rgb")
     from thinfilm.bsdf.rgb import mitsuba_colour_tables
 
     tables = mitsuba_colour_tables()
@@ -262,8 +262,8 @@ def test_colour_tables_match_colour_science(use_variant):
     np.testing.assert_allclose(tables.xyz_to_rgb, colour.RGB_COLOURSPACES["sRGB"].matrix_XYZ_to_RGB, atol=1e-3)
 
 
-def test_spectrum_film_index_refused_in_rgb(use_variant):
-    mi = use_variant("llvm_ad_rgb")
+def test_spectrum_film_index_refused_in_rgb(variant_llvm_ad_rgb):
+    mi = variant_llvm_ad_rgb
     with pytest.raises(Exception, match="thinfilm: parameter 'film_ior': a spectrum needs a spectral variant"):
         mi.load_dict({"type": "thinfilm", "film_ior": {"type": "spectrum", "value": [(400.0, 1.4), (700.0, 1.38)]}})
     bsdf = mi.load_dict({"type": "thinfilm", "thickness": 0.0, "substrate_ior": 1.5,
@@ -274,14 +274,15 @@ def test_spectrum_film_index_refused_in_rgb(use_variant):
 # --- the free-standing sheet ------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("variant", RGB_VARIANTS)
-def test_sheet_reflectance_and_transmittance_in_rgb_match_colour_science(use_variant, variant):
+@pytest.mark.parametrize("mitsuba_variant", RGB_VARIANTS, indirect=True)
+def test_sheet_reflectance_and_transmittance_in_rgb_match_colour_science(mitsuba_variant):
     """A soap film in RGB: reflected and transmitted colours (the sample weights of each lobe,
     times its probability) against colour-science's ``thin_film_tmm`` R and T of the
     free-standing film, converted to linear sRGB under D65."""
     from colour.phenomena import thin_film_tmm
 
-    mi = use_variant(variant)
+    mi = mitsuba_variant
+    variant = mi.variant()
     thetas, thickness = [0.0, 35.0, 60.0], 420.0
     bsdf = mi.load_dict({"type": "thinfilm_sheet", "thickness": thickness, "film_ior": 1.33})
     lam = np.arange(360.0, 831.0, 1.0)

@@ -70,8 +70,8 @@ def _same(mi, a, b):
 @pytest.mark.parametrize("distribution", ["ggx", "beckmann"])
 @pytest.mark.parametrize("alpha", [0.1, 0.4])
 @pytest.mark.parametrize("theta", [10.0, 50.0, 80.0])
-def test_chi2_sample_matches_pdf(use_variant, distribution, alpha, theta):
-    mi = use_variant("llvm_ad_mono")
+def test_chi2_sample_matches_pdf(variant_llvm_ad_mono, distribution, alpha, theta):
+    mi = variant_llvm_ad_mono
     from mitsuba.chi2 import BSDFAdapter, ChiSquareTest, SphericalDomain
 
     t = np.radians(theta)
@@ -84,8 +84,8 @@ def test_chi2_sample_matches_pdf(use_variant, distribution, alpha, theta):
 
 
 @pytest.mark.parametrize("distribution", ["ggx", "beckmann"])
-def test_chi2_anisotropic_all_normals(use_variant, distribution):
-    mi = use_variant("llvm_ad_mono")
+def test_chi2_anisotropic_all_normals(variant_llvm_ad_mono, distribution):
+    mi = variant_llvm_ad_mono
     from mitsuba.chi2 import BSDFAdapter, ChiSquareTest, SphericalDomain
 
     xml = ('<float name="alpha_u" value="0.3"/><float name="alpha_v" value="0.08"/>'
@@ -169,8 +169,8 @@ def test_thickness_zero_equals_roughconductor(polarized_variant, rough, substrat
         _close(v_o, v_r)
 
 
-def test_alpha_texture_equals_roughconductor(use_variant):
-    mi = use_variant("llvm_ad_mono_polarized")
+def test_alpha_texture_equals_roughconductor(variant_llvm_ad_mono_polarized):
+    mi = variant_llvm_ad_mono_polarized
     rng = np.random.default_rng(8)
     alpha = {"type": "bitmap", "bitmap": mi.Bitmap(rng.uniform(0.05, 0.5, (4, 4, 1)).astype(np.float32)),
              "raw": True}
@@ -195,10 +195,10 @@ def test_alpha_texture_equals_roughconductor(use_variant):
     {"stack": "1.38:95, 2.1:62, 1.65+0.01i:80"},
 ])
 @pytest.mark.parametrize("rough", [ROUGH[0], ROUGH[3]])
-def test_rough_film_is_roughconductor_times_film_reflectance(use_variant, film, rough):
+def test_rough_film_is_roughconductor_times_film_reflectance(variant_llvm_ad_mono, film, rough):
     """Unpolarized: eval(film) / eval(roughconductor on the bare substrate) is the film's
     reflectance over the bare substrate's (both from tmm) at the microfacet angle wi·h."""
-    mi = use_variant("llvm_ad_mono")
+    mi = variant_llvm_ad_mono
     lam, n3 = 550.0, 1.52
     ours = mi.load_dict({"type": "thinfilm", "substrate_ior": n3, "wavelength": lam, **film, **rough})
     ref = mi.load_dict({"type": "roughconductor", "eta": n3, "k": 0.0, **rough})
@@ -243,9 +243,9 @@ def _sphere_scene(mi, bsdf, res=24, spp=4):
 
 @pytest.mark.parametrize("rough", [ROUGH[0], ROUGH[1], ROUGH[3]])
 @pytest.mark.parametrize("substrate", SUBSTRATES)
-def test_thickness_zero_render_equals_roughconductor(use_variant, rough, substrate):
+def test_thickness_zero_render_equals_roughconductor(variant_llvm_ad_spectral_polarized, rough, substrate):
     """Spectral polarized render, same seed, every Stokes channel, pixel by pixel."""
-    mi = use_variant("llvm_ad_spectral_polarized")
+    mi = variant_llvm_ad_spectral_polarized
     n3, k3 = substrate
     ours = np.array(mi.render(_sphere_scene(mi, {"type": "thinfilm", "thickness": 0.0, "substrate_ior": n3,
                                                  "substrate_k": k3, **rough}), seed=11))
@@ -258,11 +258,11 @@ def test_thickness_zero_render_equals_roughconductor(use_variant, rough, substra
 
 
 @pytest.mark.parametrize("alpha", [0.05, 0.3, 0.8])
-def test_white_furnace_energy_at_most_one(use_variant, alpha):
+def test_white_furnace_energy_at_most_one(variant_llvm_ad_mono_polarized, alpha):
     """Directional albedo (mean of the sampled weights' M00, i.e. unpolarized light in) of a
     high-reflectance film on silver: at most 1, equal to the hemisphere integral of eval, and
     every sampled Mueller matrix is passive (M00 >= the norm of its first row and column)."""
-    mi = use_variant("llvm_ad_mono_polarized")
+    mi = variant_llvm_ad_mono_polarized
     import drjit as dr
 
     n = 200_000
@@ -314,11 +314,11 @@ def _plane_scene(mi, bsdf, theta_deg, res=4):
 
 
 @pytest.mark.parametrize("theta", [15.0, 45.0, 70.0])
-def test_small_alpha_approaches_smooth_film(use_variant, theta):
+def test_small_alpha_approaches_smooth_film(variant_llvm_ad_mono_polarized, theta):
     """alpha = 1e-3 against the smooth film (itself against tmm): the Stokes image means agree
     to 2e-4; pixel by pixel (64 spp) only for Beckmann, as GGX's long tail sends about one
     sample in a thousand far from the mirror direction."""
-    mi = use_variant("llvm_ad_mono_polarized")
+    mi = variant_llvm_ad_mono_polarized
     film = {"type": "thinfilm", "thickness": 520.0, "film_ior": 1.37, "substrate_ior": 1.6, "wavelength": 480.0}
 
     def stokes(bsdf):
@@ -336,10 +336,10 @@ def test_small_alpha_approaches_smooth_film(use_variant, theta):
             np.testing.assert_allclose(rough, smooth, atol=5e-4, rtol=0)
 
 
-def test_thickness_gradient_through_rough_render(use_variant):
+def test_thickness_gradient_through_rough_render(variant_llvm_ad_mono_polarized):
     """Reverse-mode AD through a tiny stokes/path render (evaluated loops) against central
     differences of the same-seed render (thickness does not move the sampled directions)."""
-    mi = use_variant("llvm_ad_mono_polarized")
+    mi = variant_llvm_ad_mono_polarized
     import drjit as dr
 
     scene = _sphere_scene(mi, {"type": "thinfilm", "thickness": 420.0, "wavelength": 530.0, "alpha": 0.25},
@@ -374,8 +374,8 @@ def test_thickness_gradient_through_rough_render(use_variant):
 # --- parameters ---------------------------------------------------------------------------------------
 
 
-def test_alpha_is_exposed_and_updates(use_variant):
-    mi = use_variant("llvm_ad_mono_polarized")
+def test_alpha_is_exposed_and_updates(variant_llvm_ad_mono_polarized):
+    mi = variant_llvm_ad_mono_polarized
     smooth = mi.traverse(mi.load_dict({"type": "thinfilm"}))
     assert "alpha" not in smooth
     bsdf = mi.load_dict({"type": "thinfilm", "alpha": 0.2})
@@ -404,7 +404,7 @@ def test_alpha_is_exposed_and_updates(use_variant):
     ({"alpha": 0.1, "distribution": "phong"}, "'distribution' must be 'ggx' or 'beckmann'"),
     ({"alpha": 0.1, "sample_visible": "yes"}, "'sample_visible' must be a boolean"),
 ])
-def test_bad_rough_parameters_raise_one_clear_error(use_variant, bad, message):
-    mi = use_variant("llvm_ad_mono_polarized")
+def test_bad_rough_parameters_raise_one_clear_error(variant_llvm_ad_mono_polarized, bad, message):
+    mi = variant_llvm_ad_mono_polarized
     with pytest.raises(Exception, match=message):
         mi.load_dict({"type": "thinfilm", **bad})

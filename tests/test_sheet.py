@@ -55,11 +55,11 @@ def _sheet_scene(mi, bsdf, theta_deg, light, back=False, res=2, spp=SPP):
 
 @pytest.mark.parametrize("back", [False, True])
 @pytest.mark.parametrize("theta", [0.0, 25.0, 40.0])
-def test_rendered_reflection_and_transmission_match_tmm(use_variant, theta, back):
+def test_rendered_reflection_and_transmission_match_tmm(variant_llvm_ad_mono_polarized, theta, back):
     """Camera in front of the sheet: the reflected sky and the transmitted area light, S0 and S1,
     from the front and from the back of an asymmetric absorbing stack (the back meets the layers
     in reverse order), at three wavelengths (mono variant)."""
-    mi = use_variant("llvm_ad_mono_polarized")
+    mi = variant_llvm_ad_mono_polarized
     layers = ASYMMETRIC[::-1] if back else ASYMMETRIC
     bsdf = {"type": "thinfilm_sheet", "stack": ASYMMETRIC_TEXT}
     scenes = {light: _sheet_scene(mi, bsdf, theta, light, back=back) for light in ("front", "behind")}
@@ -82,10 +82,10 @@ def test_rendered_reflection_and_transmission_match_tmm(use_variant, theta, back
 
 
 @pytest.mark.parametrize("back", [False, True])
-def test_lossless_sheet_under_uniform_sky_conserves_energy(use_variant, back):
+def test_lossless_sheet_under_uniform_sky_conserves_energy(variant_llvm_ad_mono_polarized, back):
     """A lossless soap film in a uniform sky: reflected plus transmitted light is the sky (R + T = 1),
     while each part alone is coloured (previous test)."""
-    mi = use_variant("llvm_ad_mono_polarized")
+    mi = variant_llvm_ad_mono_polarized
     scene = _sheet_scene(mi, {"type": "thinfilm_sheet", "thickness": 410.0, "film_ior": 1.33},
                          35.0, "all", back=back, spp=1)
     params = mi.traverse(scene)
@@ -138,11 +138,11 @@ def _to_sp_frame(mi, value, wo_hat, wi_hat):
 
 
 @pytest.mark.parametrize("mode", ["Radiance", "Importance"])
-def test_sampled_mueller_matrices_match_tmm(use_variant, mode):
+def test_sampled_mueller_matrices_match_tmm(variant_llvm_ad_spectral_polarized, mode):
     """Both lobes of the sampled Mueller matrix (spectral, polarized), in the s/p frame, against
     tmm's amplitudes: a = mean power, b = half difference, c + i s = conj(x_s) x_p; the sample
     weight is the matrix over the probability R / (R + T) of the chosen lobe."""
-    mi = use_variant("llvm_ad_spectral_polarized")
+    mi = variant_llvm_ad_spectral_polarized
     import drjit as dr
 
     bsdf = mi.load_dict({"type": "thinfilm_sheet", "stack": ASYMMETRIC_TEXT})
@@ -234,11 +234,11 @@ def test_unpolarized_weights_and_single_lobe_contexts(unpolarized_variant):
     np.testing.assert_allclose(np.ravel(np.array(bsdf.eval_null_transmission(si))), T, atol=2e-6)
 
 
-def test_thickness_average_at_normal_incidence_equals_thindielectric(use_variant):
+def test_thickness_average_at_normal_incidence_equals_thindielectric(variant_llvm_ad_mono):
     """Mitsuba's thindielectric sums the multiple reflections incoherently: r' = 2r / (1 + r). Averaged
     over one period of thickness (a full turn of the round-trip phase), the coherent reflectance of a
     lossless film is exactly that sum; at normal incidence (where s and p agree) compare the two."""
-    mi = use_variant("llvm_ad_mono")
+    mi = variant_llvm_ad_mono
     import drjit as dr
 
     n_film, lam = 1.5, 550.0
@@ -260,10 +260,10 @@ def test_thickness_average_at_normal_incidence_equals_thindielectric(use_variant
     assert np.ptp(reflect) > 0.1  # the coherent film really oscillates
 
 
-def test_named_water_film_and_thickness_texture(use_variant):
+def test_named_water_film_and_thickness_texture(variant_llvm_ad_spectral_polarized):
     """Spectral: an H2O film whose thickness is a texture (thin at the top, thick at the bottom, like a
     draining bubble), reflection of the front side against tmm at each ray's wavelengths."""
-    mi = use_variant("llvm_ad_spectral_polarized")
+    mi = variant_llvm_ad_spectral_polarized
     import drjit as dr
 
     from thinfilm.bsdf import named_material
@@ -288,8 +288,8 @@ def test_named_water_film_and_thickness_texture(use_variant):
             assert abs(m00[ch, k] - 0.5 * (ref_s["R"] + ref_p["R"])) < 2e-5
 
 
-def test_sheet_parameters(use_variant):
-    mi = use_variant("llvm_ad_mono_polarized")
+def test_sheet_parameters(variant_llvm_ad_mono_polarized):
+    mi = variant_llvm_ad_mono_polarized
     params = mi.traverse(mi.load_dict({"type": "thinfilm_sheet", "stack": "1.38:100, Au:10"}))
     assert {"layer_0.thickness", "layer_1.thickness", "layer_0.ior", "layer_0.k", "thickness_scale",
             "ext_ior", "wavelength"} <= set(params.keys())
@@ -306,8 +306,8 @@ def test_sheet_parameters(use_variant):
             mi.load_dict({"type": "thinfilm_sheet", **bad})
 
 
-def test_sheet_loads_from_xml(use_variant):
-    mi = use_variant("llvm_ad_spectral_polarized")
+def test_sheet_loads_from_xml(variant_llvm_ad_spectral_polarized):
+    mi = variant_llvm_ad_spectral_polarized
     bsdf = mi.load_string('<bsdf version="3.0.0" type="thinfilm_sheet">'
                           '<float name="thickness" value="350"/><string name="film_ior" value="H2O"/></bsdf>')
     assert "thickness=[350" in str(bsdf) and "H2O" in str(bsdf)

@@ -180,10 +180,8 @@ def test_one_layer_stack_equals_single_film_bit_for_bit(film):
         assert np.array_equal(ours[0], ref[0]) and np.array_equal(ours[1], ref[1])
 
 
-def test_one_layer_stack_equals_single_film_bit_for_bit_in_drjit():
-    import mitsuba as mi
-
-    mi.set_variant("llvm_ad_spectral")
+def test_one_layer_stack_equals_single_film_bit_for_bit_in_drjit(variant_llvm_ad_spectral):
+    mi = variant_llvm_ad_spectral
     rng = np.random.default_rng(3)
     cos, lam, d = (mi.Float(rng.uniform(lo, hi, 257)) for lo, hi in ((0, 1), (380, 780), (0, 1500)))
     for n2, k2, n3, k3, n1 in FILMS:
@@ -194,12 +192,11 @@ def test_one_layer_stack_equals_single_film_bit_for_bit_in_drjit():
             assert np.array_equal(np.array(a.im), np.array(b.im))
 
 
-def test_drjit_backend_matches_numpy_for_stacks():
+def test_drjit_backend_matches_numpy_for_stacks(variant_llvm_ad_spectral):
     """Float32 lanes (llvm_ad_spectral) and double precision (drjit.llvm.Float64)."""
     import drjit as dr
-    import mitsuba as mi
 
-    mi.set_variant("llvm_ad_spectral")
+    mi = variant_llvm_ad_spectral
     n1, layers, substrate = STACKS["absorbing"]
     rng = np.random.default_rng(5)
     cos, lam, scale = rng.uniform(0, 1, 101), rng.uniform(380, 780, 101), rng.uniform(0.5, 1.5, 101)
@@ -215,12 +212,10 @@ def test_drjit_backend_matches_numpy_for_stacks():
 
 
 @pytest.mark.parametrize("eta", [1.5, 1.33, 2.4])
-def test_bare_interface_transmission_mueller_equals_mitsuba(eta):
+def test_bare_interface_transmission_mueller_equals_mitsuba(variant_scalar_spectral_polarized, eta):
     """No layer: our transmission Mueller entries (tmm's t with the intensity factor) equal Mitsuba's
     mueller.specular_transmission, and the reflection entries its specular_reflection."""
-    import mitsuba as mi
-
-    mi.set_variant("scalar_spectral_polarized")
+    mi = variant_scalar_spectral_polarized
     for theta in [0.0, 20.0, 45.0, 60.0, 80.0]:
         c = float(np.cos(np.radians(theta)))
         r_s, r_p, t_s, t_p = optics.stack_amplitudes(c, 550.0, [], eta, transmission=True)

@@ -45,8 +45,8 @@ CASES = {
 
 
 @pytest.mark.parametrize("name", sorted(CASES))
-def test_mono_polarized_stack_render_matches_tmm(use_variant, name):
-    mi = use_variant("llvm_ad_mono_polarized")
+def test_mono_polarized_stack_render_matches_tmm(variant_llvm_ad_mono_polarized, name):
+    mi = variant_llvm_ad_mono_polarized
     params_in, layers, substrate = CASES[name]
     theta = 40.0
     scene = _plane_scene(mi, {"type": "thinfilm", **params_in}, theta, 0.0)
@@ -57,16 +57,16 @@ def test_mono_polarized_stack_render_matches_tmm(use_variant, name):
         _check_render(mi, scene, theta, lam, layers, substrate)
 
 
-def test_bragg_mirror_render_reflects_in_its_stop_band(use_variant):
-    mi = use_variant("llvm_ad_mono_polarized")
+def test_bragg_mirror_render_reflects_in_its_stop_band(variant_llvm_ad_mono_polarized):
+    mi = variant_llvm_ad_mono_polarized
     scene = _plane_scene(mi, {"type": "thinfilm", "stack": _stack_text(BRAGG), "substrate_ior": 1.52,
                               "wavelength": 550.0}, 10.0, 0.0)
     assert np.all(_stokes(mi, scene)[0] > 0.99)
 
 
-def test_thickness_scale_multiplies_every_layer(use_variant):
+def test_thickness_scale_multiplies_every_layer(variant_llvm_ad_mono_polarized):
     """A float scale (changed through traverse), and a texture scale varying over the plane."""
-    mi = use_variant("llvm_ad_mono_polarized")
+    mi = variant_llvm_ad_mono_polarized
     layers = [(1.38, 110.0), (2.1, 70.0)]
     theta, lam = 35.0, 520.0
     scene = _plane_scene(mi, {"type": "thinfilm", "stack": _stack_text(layers), "substrate_ior": 1.6,
@@ -88,9 +88,9 @@ def test_thickness_scale_multiplies_every_layer(use_variant):
     assert found == [0.5, 2.0]
 
 
-def test_named_absorbing_film_keeps_its_extinction(use_variant):
+def test_named_absorbing_film_keeps_its_extinction(variant_llvm_ad_spectral_polarized):
     """A 25 nm gold film (the Au table's n and k at each ray's wavelength) on glass, spectral."""
-    mi = use_variant("llvm_ad_spectral_polarized")
+    mi = variant_llvm_ad_spectral_polarized
     from thinfilm.bsdf import named_material
 
     au = named_material("Au")
@@ -112,32 +112,33 @@ def test_named_absorbing_film_keeps_its_extinction(use_variant):
         assert worst < 2e-5
 
 
-def test_one_layer_stack_equals_single_film_bit_for_bit(use_variant):
+@pytest.mark.parametrize("mitsuba_variant", ["llvm_ad_spectral_polarized", "llvm_ad_mono_polarized",
+                                             "llvm_ad_spectral"], indirect=True)
+def test_one_layer_stack_equals_single_film_bit_for_bit(mitsuba_variant):
     """``stack = "n:d"`` and ``film_ior = n, thickness = d`` give identical Mueller matrices, and
     film_k = 0 changes nothing against a lossless film."""
-    for variant in ("llvm_ad_spectral_polarized", "llvm_ad_mono_polarized", "llvm_ad_spectral"):
-        mi = use_variant(variant)
-        import drjit as dr
+    mi = mitsuba_variant
+    import drjit as dr
 
-        si = _random_interactions(mi, 64, seed=11)[0]
-        ctx = mi.BSDFContext()
-        results = []
-        for bsdf in ({"stack": "1.45:380"}, {"film_ior": 1.45, "thickness": 380.0},
-                     {"film_ior": 1.45, "thickness": 380.0, "film_k": 0.0},
-                     {"stack": "1.45+0i:380", "thickness_scale": 1.0}):
-            plugin = mi.load_dict({"type": "thinfilm", "substrate_ior": 0.27, "substrate_k": 3.4,
-                                   "wavelength": 480.0, **bsdf})
-            value = plugin.sample(ctx, si, 0.5, mi.Point2f(0.5, 0.5))[1]
-            dr.eval(value)
-            results.append(np.array(value) if not mi.is_polarized else
-                           np.array([[np.array(value[i, j]) for j in range(4)] for i in range(4)]))
-        assert np.abs(results[0]).max() > 0.1
-        for other in results[1:]:
-            assert np.array_equal(results[0], other)
+    si = _random_interactions(mi, 64, seed=11)[0]
+    ctx = mi.BSDFContext()
+    results = []
+    for bsdf in ({"stack": "1.45:380"}, {"film_ior": 1.45, "thickness": 380.0},
+                 {"film_ior": 1.45, "thickness": 380.0, "film_k": 0.0},
+                 {"stack": "1.45+0i:380", "thickness_scale": 1.0}):
+        plugin = mi.load_dict({"type": "thinfilm", "substrate_ior": 0.27, "substrate_k": 3.4,
+                               "wavelength": 480.0, **bsdf})
+        value = plugin.sample(ctx, si, 0.5, mi.Point2f(0.5, 0.5))[1]
+        dr.eval(value)
+        results.append(np.array(value) if not mi.is_polarized else
+                       np.array([[np.array(value[i, j]) for j in range(4)] for i in range(4)]))
+    assert np.abs(results[0]).max() > 0.1
+    for other in results[1:]:
+        assert np.array_equal(results[0], other)
 
 
-def test_stack_layers_are_exposed_and_differentiable(use_variant):
-    mi = use_variant("llvm_ad_mono_polarized")
+def test_stack_layers_are_exposed_and_differentiable(variant_llvm_ad_mono_polarized):
+    mi = variant_llvm_ad_mono_polarized
     import drjit as dr
 
     bsdf = mi.load_dict({"type": "thinfilm", "stack": "MgF2:95, 2.1:62, 1.65+0.01i:80",
@@ -191,14 +192,14 @@ def test_stack_layers_are_exposed_and_differentiable(use_variant):
     ({"film_k": -0.1}, "thinfilm: parameter 'film_k' must be >= 0"),
     ({"thickness_scale": -1.0}, "thinfilm: parameter 'thickness_scale' must be >= 0"),
 ])
-def test_bad_stack_parameters_raise_one_clear_error(use_variant, bad, message):
-    mi = use_variant("llvm_ad_mono_polarized")
+def test_bad_stack_parameters_raise_one_clear_error(variant_llvm_ad_mono_polarized, bad, message):
+    mi = variant_llvm_ad_mono_polarized
     with pytest.raises(Exception, match=message.replace("(", r"\(")):
         mi.load_dict({"type": "thinfilm", **bad})
 
 
-def test_bad_layer_update_is_refused(use_variant):
-    mi = use_variant("llvm_ad_mono_polarized")
+def test_bad_layer_update_is_refused(variant_llvm_ad_mono_polarized):
+    mi = variant_llvm_ad_mono_polarized
     bsdf = mi.load_dict({"type": "thinfilm", "stack": "1.5:100, 2.0:50"})
     params = mi.traverse(bsdf)
     params["layer_1.thickness"] = -1.0
@@ -206,8 +207,8 @@ def test_bad_layer_update_is_refused(use_variant):
         params.update()
 
 
-def test_stack_loads_from_xml(use_variant):
-    mi = use_variant("llvm_ad_spectral_polarized")
+def test_stack_loads_from_xml(variant_llvm_ad_spectral_polarized):
+    mi = variant_llvm_ad_spectral_polarized
     bsdf = mi.load_string(
         '<bsdf version="3.0.0" type="thinfilm">'
         '<string name="stack" value="MgF2:95, 2.1:62, 1.65+0.01i:80"/>'
