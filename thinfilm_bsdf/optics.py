@@ -330,40 +330,10 @@ def film_amplitudes(
 
     See Also
     --------
-    stack_amplitudes : any number of films, and transmission. This closed form is its
-        one-layer case, operation for operation (the two agree bit for bit).
+    stack_amplitudes : any number of films, and transmission; this is its one-layer case.
     """
-    ops = _ops_for(cos_theta1, wavelength_nm, thickness_nm, film_ior, substrate_ior, substrate_k)
-    numpy_in = ops is _NUMPY
-    if numpy_in:
-        cos_theta1 = np.asarray(cos_theta1, dtype=np.float64)
-        wavelength_nm = np.asarray(wavelength_nm, dtype=np.float64)
-        thickness_nm = np.asarray(thickness_nm, dtype=np.float64)
-
-    n1 = Complex.of(ext_ior * 1.0)
-    n2 = _index(film_ior, film_k)
-    n3 = _index(substrate_ior, substrate_k)
-
-    sin2 = 1.0 - cos_theta1 * cos_theta1
-    n1_sin2 = n1 * n1 * sin2  # n1 real: (n1 sin θ1)²
-    q1 = n1 * cos_theta1
-    q2 = _normal_component(n2, n1_sin2, ops)
-    q3 = _normal_component(n3, n1_sin2, ops)
-
-    r12_s, r12_p = _fresnel(n1, q1, n2, q2)
-    r23_s, r23_p = _fresnel(n2, q2, n3, q3)
-
-    # Round-trip phase Δ = 4π q2 d / λ (complex for an absorbing film).
-    k0d = (4.0 * np.pi) * thickness_nm / wavelength_nm
-    phase = _cexp_i(q2 * k0d, ops)
-
-    t_s = r23_s * phase
-    t_p = r23_p * phase
-    r_s = (r12_s + t_s) / (1.0 + r12_s * t_s)
-    r_p = (r12_p + t_p) / (1.0 + r12_p * t_p)
-    if numpy_in:
-        return r_s.to_numpy(), r_p.to_numpy()
-    return r_s, r_p
+    return stack_amplitudes(cos_theta1, wavelength_nm, [(film_ior, film_k, thickness_nm)], substrate_ior,
+                            substrate_k, ext_ior)
 
 
 def reflectances(cos_theta1, wavelength_nm, thickness_nm, film_ior, substrate_ior,
