@@ -110,6 +110,7 @@ _CANDIDATES = 2  # lowest local minima of the BIC profile refined per spectrum .
 _CANDIDATES_POSITIVE = 1  # ... and lowest among grid thicknesses with a plausible response
 _COARSE = 64  # wavelengths at which the response's positivity is checked
 _MAX_SUBSAMPLES = 32
+_CAP_FACTOR = 0.75  # response degree <= this × π × fringes (see gain_columns)
 _GAIN_FLOOR = 0.1  # a fitted response must stay above 10 % of its maximum ...
 _GAIN_FLOOR_GRID = -0.25  # ... on the coarse grid, where it may dip a little below zero
 _PLAUSIBLE_MARGIN = 25.0  # BIC a plausible fit may lose to an implausible one and still win
@@ -285,7 +286,8 @@ def _qr(A):
 class _Problem:
     """Everything shared by the spectra of one wavelength grid."""
 
-    def __init__(self, lam, model, background, reference, d_range, fit_film_ior):
+    def __init__(self, lam, model, background, reference, d_range, fit_film_ior,
+                 background_degree=BACKGROUND_DEGREE):
         self.lam = lam
         self.n = lam.size
         self.model = model
@@ -304,7 +306,7 @@ class _Problem:
         self.n_ref = float(model.indices(np.array([self.lam_ref]))[0][0])
 
         # linear bases: background columns first, then the response's
-        phi = None if background is not None else _legendre_basis(lam, BACKGROUND_DEGREE)
+        phi = None if background is not None else _legendre_basis(lam, background_degree)
         if reference is not None:
             ref = reference - (background if background is not None else 0.0)
             gain = ref[:, None] / np.sqrt(np.mean(ref * ref))
@@ -334,7 +336,7 @@ class _Problem:
         d = np.asarray(d, dtype=np.float64)
         if not self.nested:
             return np.full(d.shape, self.gain.shape[1], dtype=int)
-        cap = np.floor(0.5 * np.pi * self.model.fringes(self.lam, d))
+        cap = np.floor(_CAP_FACTOR * np.pi * self.model.fringes(self.lam, d))
         return np.clip(cap, GAIN_DEGREE_MIN, GAIN_DEGREE_MAX).astype(int) + 1
 
     def column_options(self):
@@ -592,7 +594,7 @@ def _clip(problem, theta):
     return theta
 
 
-def _levenberg_marquardt(problem, Y, theta, g, iterations=30):
+def _levenberg_marquardt(problem, Y, theta, g, iterations=30, freeze_index=False):
     """Levenberg-Marquardt for N independent problems with ``g`` response columns; each
     iteration evaluates only the problems still moving.
 
@@ -610,8 +612,12 @@ def _levenberg_marquardt(problem, Y, theta, g, iterations=30):
         if idx.size == 0:
             break
         H, grad = cur.JtJ[idx], cur.Jtr[idx]
+        free = 1 if freeze_index else k  # a frozen index offset: steps in d alone
+        H, grad = H[:, :free, :free], grad[:, :free]
         diag = np.maximum(np.einsum("nkk->nk", H), 1e-300)
-        step = np.linalg.solve(H + (mu[idx, None] * diag)[:, :, None] * eye, grad[:, :, None])[:, :, 0]
+        step = np.zeros((idx.size, k))
+        step[:, :free] = np.linalg.solve(H + (mu[idx, None] * diag)[:, :, None] * eye[:, :free, :free],
+                                         grad[:, :, None])[:, :, 0]
         new = _State(problem, Y[idx], _clip(problem, cur.theta[idx] + step), g, jacobian=False)
         better = new.cost < cur.cost[idx]
         new.jacobian(better)
@@ -624,7 +630,7 @@ def _levenberg_marquardt(problem, Y, theta, g, iterations=30):
     return cur
 
 
-def _refine(problem, Y, theta, g):
+def _refine(problem, Y, theta, g, freeze_index=False):
     """Refine N problems (rows of Y, theta) with their own response column counts ``g`` (N,);
     returns (theta, cost, plausible) and the final states per column count."""
     theta_out = theta.copy()
@@ -632,7 +638,7 @@ def _refine(problem, Y, theta, g):
     plausible = np.empty(theta.shape[0], dtype=bool)
     for gv in np.unique(g):
         sel = np.flatnonzero(g == gv)
-        st = _levenberg_marquardt(problem, Y[sel], theta[sel].copy(), int(gv))
+        st = _levenberg_marquardt(problem, Y[sel], theta[sel].copy(), int(gv), freeze_index=freeze_index)
         theta_out[sel], cost[sel], plausible[sel] = st.theta, st.cost, st.plausible
     return theta_out, cost, plausible
 
@@ -718,6 +724,60 @@ def _posterior_spread(problem, Y, grid, theta, bic_fit, rho, chunk=32):
     return (w * dev2).sum(axis=0) / (1.0 + w.sum(axis=0))
 
 
+def _bic_at(problem, Y, theta, g, scale2):
+    """BIC (N,) of fits at fixed theta with ``g`` (N,) response columns."""
+    cost = np.empty(theta.shape[0])
+    for gv in np.unique(g):
+        sel = np.flatnonzero(g == gv)
+        cost[sel] = _State(problem, Y[sel], theta[sel].copy(), int(gv), jacobian=False).cost
+    return problem.bic(cost, g, scale2)
+
+
+def _index_valley(problem, Y, theta, g, rho, scale2, count=25, span=0.15):
+    """Film index and thickness along the valley of equal optical thickness.
+
+    The fringes fix the optical thickness ``n2 d`` far better than ``n2`` and ``d`` apart (the
+    index shows only in the fringes' amplitude and shape), so a fit started at a wrong index
+    can stop anywhere along ``n2 d = const``. This walks the valley: ``count`` film indices
+    within ``± span`` of the fitted one, each with the thickness that keeps the optical
+    thickness and refined with the index held. Returns ``(theta, var)``: the parameters moved
+    to the valley's best point where that beats the fit (then refined in both), and the
+    evidence-weighted second moments of thickness and index about them (BIC differences
+    scaled by ``(1 − ρ)/(1 + ρ)`` as in :func:`_posterior_spread`)."""
+    S = theta.shape[0]
+    lam_ref = np.array([problem.lam_ref])
+    n_fit = problem.n_ref + theta[:, 1]
+    u = np.linspace(-span, span, count)
+    n_new = np.clip(n_fit[:, None] * (1.0 + u[None, :]), 1.01, 4.0)  # (S, J)
+    delta = n_new - problem.n_ref
+    q_fit = np.array([problem.model.phase_index(lam_ref, dv)[0] for dv in theta[:, 1]])
+    q_new = np.vectorize(lambda dv: problem.model.phase_index(lam_ref, dv)[0])(delta)
+    d_new = theta[:, :1] * q_fit[:, None] / q_new
+    th = np.stack([d_new.reshape(-1), delta.reshape(-1)], axis=1)
+    th = _clip(problem, th)
+    gg = np.repeat(g, count)
+    Yv = np.repeat(Y, count, axis=0)
+    th, cost, _ = _refine(problem, Yv, th, gg, freeze_index=True)
+    bic_v = problem.bic(cost, gg, np.repeat(scale2, count)).reshape(S, count)
+    th = th.reshape(S, count, 2)
+    bic_fit = _bic_at(problem, Y, theta, g, scale2)
+    best = np.argmin(bic_v, axis=1)
+    moved = bic_v[np.arange(S), best] < bic_fit - 1e-9
+    theta = theta.copy()
+    if np.any(moved):
+        rows = np.flatnonzero(moved)
+        start = th[rows, best[rows]]
+        theta[rows] = _refine(problem, Y[rows], start, g[rows])[0]
+        bic_fit[rows] = _bic_at(problem, Y[rows], theta[rows], g[rows], scale2[rows])
+    shrink = (1.0 - rho) / (1.0 + rho)
+    logw = np.minimum(-0.5 * (bic_v - bic_fit[:, None]) * shrink[:, None], 50.0)
+    w = np.exp(logw)
+    norm = 1.0 + w.sum(axis=1)
+    var = np.stack([(w * (th[:, :, 0] - theta[:, :1]) ** 2).sum(axis=1) / norm,
+                    (w * (th[:, :, 1] - theta[:, 1:]) ** 2).sum(axis=1) / norm], axis=1)
+    return theta, var
+
+
 def _best_gain_columns(problem, Y, theta, lo, hi):
     """Per problem, the number of response columns within ``[lo, hi]`` (arrays or numbers)
     with the lowest BIC at fixed theta."""
@@ -772,6 +832,65 @@ def _thickness_range(lam, model, thickness_range_nm):
     return DEFAULT_THICKNESS_RANGE_NM[0], min(DEFAULT_THICKNESS_RANGE_NM[1], d_nyquist)
 
 
+def _fit_problem(problem, Yfit):
+    """Steps 1-3 of the module docstring for the spectra ``Yfit`` (S, n) of one problem.
+
+    Returns a dict of per-spectrum arrays: ``theta`` (S, k), ``var`` (S, k) variances,
+    ``cost``, ``fitted``, ``g`` response columns and ``p_lin`` linear parameters."""
+    S, k = Yfit.shape[0], problem.k
+    scale2 = np.einsum("sn,sn->s", Yfit, Yfit)
+
+    # 1. every order: the profile over the thickness grid
+    grid = _grid(problem)
+    d0 = _candidates(_profile(problem, Yfit, grid))
+    M = d0.shape[1]
+
+    # 2. refine every candidate with the response allowed there; keep the best (a plausible
+    #    fit first, then the lowest BIC); then the response's degree by BIC within the cap
+    # (a start found twice for a spectrum is refined once)
+    dup = np.zeros((S, M), dtype=bool)
+    for j in range(1, M):
+        dup[:, j] = np.any(np.isclose(d0[:, :j], d0[:, j:j + 1], rtol=0.0, atol=1e-9), axis=1)
+    rows = np.flatnonzero(~dup.reshape(-1))
+    theta0 = np.zeros((rows.size, k))
+    theta0[:, 0] = d0.reshape(-1)[rows]
+    g_flat = problem.gain_columns(theta0[:, 0])
+    spectrum = rows // M
+    theta_r, cost_r, plausible_r = _refine(problem, Yfit[spectrum], theta0, g_flat)
+    bic = np.full(S * M, np.inf)
+    bic[rows] = problem.bic(cost_r, g_flat, scale2[spectrum])
+    plausible = np.zeros(S * M, dtype=bool)
+    plausible[rows] = plausible_r
+    best = _choose(bic.reshape(S, M), plausible.reshape(S, M)) + np.arange(S) * M
+    where = np.searchsorted(rows, best)  # the winners' rows among the refined ones
+    theta, g_best, Yb, plausible = theta_r[where], g_flat[where], Yfit, plausible_r[where]
+    if problem.nested:
+        g_low = _best_gain_columns(problem, Yb, theta, 1, problem.gain_columns(theta[:, 0]))
+        redo = np.flatnonzero(g_low != g_best)
+        if redo.size:
+            th2, cost2, pos2 = _refine(problem, Yb[redo], theta[redo], g_low[redo])
+            keep = pos2 | ~plausible[redo]
+            theta[redo[keep]], g_best[redo[keep]] = th2[keep], g_low[redo[keep]]
+
+    # 3. uncertainty at the winners: the larger of the local (Jacobian) variances with the
+    #    capped response and with the response the data ask for (uncapped), plus the spread of
+    #    the thickness's evidence over the grid (all responses)
+    g_free = g_best
+    if problem.nested:
+        g_free = _best_gain_columns(problem, Yb, theta, g_best, GAIN_DEGREE_MAX + 1)
+    var_valley = 0.0
+    if k > 1:
+        rho = _covariances(problem, Yb, theta, g_best)[3]
+        theta, var_valley = _index_valley(problem, Yb, theta, g_best, rho, scale2)
+    cov, fitted, cost, _ = _covariances(problem, Yb, theta, g_best)
+    cov_free, _, cost_free, rho_free = _covariances(problem, Yb, theta, g_free)
+    var = np.maximum(np.einsum("skk->sk", cov), np.einsum("skk->sk", cov_free)) + var_valley
+    bic_free = problem.bic(cost_free, g_free, scale2)
+    var[:, 0] += _posterior_spread(problem, Yb, grid, theta, bic_free, rho_free)
+    return {"problem": problem, "theta": theta, "var": var, "cost": cost, "fitted": fitted,
+            "g": g_best, "p_lin": problem.p_b + g_best}
+
+
 def fit_spectra(wavelengths_nm, spectra, model, *, background=None, reference=None,
                 thickness_range_nm=None, fit_film_ior=False):
     """Fit the film thickness (and index) of spectra sampled on one wavelength grid.
@@ -815,54 +934,19 @@ def fit_spectra(wavelengths_nm, spectra, model, *, background=None, reference=No
             raise ValueError(f"{name} must be finite and sampled on the spectra's wavelengths")
     d_range = _thickness_range(lam, model, thickness_range_nm)
 
-    problem = _Problem(lam, model, bg, ref, d_range, fit_film_ior)
     Yfit = Y - bg[None, :] if bg is not None else Y
-    S, n, k = Y.shape[0], lam.size, problem.k
-    scale2 = np.einsum("sn,sn->s", Yfit, Yfit)
-
-    # 1. every order: the profile over the thickness grid
-    grid = _grid(problem)
-    d0 = _candidates(_profile(problem, Yfit, grid))
-    M = d0.shape[1]
-
-    # 2. refine every candidate with the response allowed there; keep the best (a plausible
-    #    response first, then the lowest BIC); then the response's degree by BIC within the cap
-    theta0 = np.zeros((S * M, k))
-    theta0[:, 0] = d0.reshape(-1)
-    g_flat = problem.gain_columns(theta0[:, 0])
-    Yrep = np.repeat(Yfit, M, axis=0)
-    theta, cost, plausible = _refine(problem, Yrep, theta0, g_flat)
-    bic = problem.bic(cost, g_flat, np.repeat(scale2, M)).reshape(S, M)
-    best = _choose(bic, plausible.reshape(S, M)) + np.arange(S) * M
-    theta, g_best, Yb, plausible = theta[best], g_flat[best], Yrep[best], plausible[best]
-    if problem.nested:
-        g_low = _best_gain_columns(problem, Yb, theta, 1, problem.gain_columns(theta[:, 0]))
-        redo = np.flatnonzero(g_low != g_best)
-        if redo.size:
-            th2, cost2, pos2 = _refine(problem, Yb[redo], theta[redo], g_low[redo])
-            keep = pos2 | ~plausible[redo]
-            theta[redo[keep]], g_best[redo[keep]] = th2[keep], g_low[redo[keep]]
-
-    # 3. uncertainty at the winners: the larger of the local (Jacobian) variances with the
-    #    capped response and with the response the data ask for (uncapped), plus the spread of
-    #    the thickness's evidence over the grid (all responses)
-    g_free = g_best
-    if problem.nested:
-        g_free = _best_gain_columns(problem, Yb, theta, g_best, GAIN_DEGREE_MAX + 1)
-        redo = np.flatnonzero(g_free != g_best)
-        if redo.size:
-            theta[redo] = _refine(problem, Yb[redo], theta[redo], g_free[redo])[0]
-    cov_free, fitted, cost_free, rho_free = _covariances(problem, Yb, theta, g_free)
-    var = np.einsum("skk->sk", cov_free)
-    cost, g_best = cost_free, g_free
-    bic_free = problem.bic(cost_free, g_free, scale2)
-    var[:, 0] += _posterior_spread(problem, Yb, grid, theta, bic_free, rho_free)
+    S, n = Y.shape[0], lam.size
+    problem = _Problem(lam, model, bg, ref, d_range, fit_film_ior,
+                       None if bg is not None else BACKGROUND_DEGREE)
+    out = _fit_problem(problem, Yfit)
+    theta, var, cost, fitted, g_best, p_lin = (out[key] for key in ("theta", "var", "cost", "fitted", "g", "p_lin"))
+    k = problem.k
     sigma_noise = _noise_sigma(Yfit)
     results = []
     for i in range(S):
         d = float(theta[i, 0])
         delta = float(theta[i, 1]) if k > 1 else 0.0
-        dof = max(n - problem.p_b - int(g_best[i]) - k, 1)
+        dof = max(n - int(p_lin[i]) - k, 1)
         results.append(SpectrumFit(
             thickness_nm=d,
             thickness_sigma_nm=float(np.sqrt(var[i, 0])),
