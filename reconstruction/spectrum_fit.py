@@ -16,49 +16,69 @@ instrument response (lamp × optics × detector). ``B`` and ``G`` are unknown un
   known; without a background the reference's own offset is the fitted ``B``, so
   ``G = s · I_ref + (a line in 1/λ)``);
 * without a reference ``G`` is a positive polynomial in ``1/λ`` whose degree is chosen per
-  spectrum (below), at most :data:`GAIN_DEGREE_MAX`.
+  spectrum (below).
 
 For a given ``d`` (and ``n2``) the model is linear in the coefficients of ``B`` and ``G``, so they
 are solved in closed form (variable projection): the profile cost ``c(d) = ‖(1 − P_A(d)) y‖²``,
 ``A(d)`` the design matrix ``[B basis, G basis · R(d)]``, depends on ``d`` alone.
 
 Identifiability. The thickness is in the fringes; a response flexible enough to draw fringes of
-its own could absorb them. A polynomial of degree ``p`` in ``1/λ`` cannot follow oscillations
-of more than about ``p / π`` periods across the range, so for a candidate thickness with ``N``
-fringes in the range the response's degree is capped at ``π N / 2`` (at least
-:data:`GAIN_DEGREE_MIN`): always smoother than the film's own features. Within the cap the
-degree is chosen by the Bayesian information criterion ``BIC = n ln(RSS/n) + p ln n``, which is
-also what compares candidates of different degrees.
+its own could absorb them. A polynomial of degree ``p`` in ``1/λ`` cannot follow much more than
+``p / π`` oscillation periods across the range, so for a candidate thickness with ``N``
+fringes in the range the response's degree is capped at ``0.75 π N`` (at least
+:data:`GAIN_DEGREE_MIN`, at most :data:`GAIN_DEGREE_MAX`): smoother than the film's own
+features. Within the cap the degree is chosen by the Bayesian information criterion
+``BIC = n ln(RSS/n) + p ln n``, which is also what compares candidates of different degrees. A fit
+is *plausible* when its response stays above 5 % of its maximum and its background does not
+fall below −5 % of the spectrum's maximum (a response that goes negative flips the fringes: the
+half-order-shifted false solutions; a strongly negative background lets a thinner film's
+reflectance, scaled up and shifted down, pass for a thicker one).
 
 Algorithm (the user chooses no method and no interference order):
 
-1. **every order at once**: the BIC profile over a thickness grid covering the range, step
-   ``λ_min / (8 n2 cos θ2)`` (an eighth of the spacing between neighbouring orders), for all
-   spectra sharing a wavelength grid in one batch: the design matrices are shared, one QR per
-   grid thickness, and because the response's Legendre columns are ordered by degree the
-   residual of every degree comes from the same QR;
-2. the lowest local minima of the profile, and the lowest among those whose response is
-   plausible, are **refined** by Levenberg-Marquardt on the variable-projection residual
-   (Kaufman's Jacobian) over ``d`` and, with ``fit_film_ior``, an offset ``δ`` added to the
-   film's dispersion ``n2(λ) + δ``; the lowest BIC with a plausible response wins (a response
-   that goes negative flips fringes upside down: the half-order-shifted false solutions);
-3. **uncertainty** from the Jacobian of the projected residual ``J̃ = (1 − P_A) ∂(A c)/∂θ``
-   (the linear coefficients profiled out, so their correlation with ``d`` and ``n2`` is
-   included): ``Cov(θ) = (J̃ᵀJ̃)⁻¹ J̃ᵀ Σ J̃ (J̃ᵀJ̃)⁻¹`` with ``Σ_ij = s² ρ^|i−j|``, ``s² =
-   RSS / (n − p)`` the residual variance (``n`` points, ``p`` parameters) and ``ρ`` the lag-1
-   autocorrelation of the residuals (clipped to ``[0, 0.95]``). For white noise (``ρ = 0``) this
-   is the textbook ``s² (J̃ᵀJ̃)⁻¹``; a smoothed spectrum or a smooth misfit of the response makes
-   the residuals correlated, and the sandwich keeps sigma from shrinking with oversampling.
+1. **every order at once**: the profile over a thickness grid covering the range, step
+   ``λ_min / (8 n2 cos θ2)`` (an eighth of the spacing between neighbouring orders at the
+   shortest wavelength), for all spectra sharing a wavelength grid in one batch: the design
+   matrices are shared (one QR per grid thickness, the spectra projected together), and each
+   grid thickness is polished by one Gauss-Newton step of the variable-projection problem, so
+   that a grid point a fraction of a fringe off the truth still ranks it first however high
+   the signal-to-noise ratio;
+2. the two lowest local minima of the profile and the lowest plausible one are **refined** by
+   Levenberg-Marquardt on the variable-projection residual (Kaufman's Jacobian, all spectra
+   batched) over ``d`` and, with ``fit_film_ior``, an offset ``δ`` added to the film's
+   dispersion ``n2(λ) + δ``. The lowest BIC wins, unless it is implausible and a plausible
+   candidate comes within 25 of it. With ``fit_film_ior`` the valley of equal optical
+   thickness ``n2 d`` (which the fringes fix far better than ``n2`` and ``d`` apart) is then
+   walked over ±15 % in ``n2``, and the fit moves to its best point if that is better;
+3. **uncertainty**, the sum of two terms:
 
-Films thinner than about ``λ / (4 n2)`` show no full fringe in the range: their thickness is in
-the broad shape of ``R``, which a free response can partly mimic. The fit does not hide that:
-the profiled Jacobian then gives a large sigma. A reference (and a background) pins the response
-and recovers the thickness of such films.
+   * *local*: from the Jacobian of the projected residual ``J̃ = (1 − P_A) ∂(A c)/∂θ`` (the
+     linear coefficients profiled out, so their correlation with ``d`` and ``n2`` is
+     included): ``Cov(θ) = (J̃ᵀJ̃)⁻¹ J̃ᵀ Σ J̃ (J̃ᵀJ̃)⁻¹`` with ``Σ_ij = s² ρ^|i−j|``, ``s² =
+     RSS / (n − p)`` the residual variance (``n`` points, ``p`` parameters) and ``ρ`` the lag-1
+     autocorrelation of the residuals (clipped to ``[0, 0.95]``). For white noise (``ρ = 0``)
+     this is the textbook ``s² (J̃ᵀJ̃)⁻¹``; a smoothed spectrum or a smooth misfit of the
+     response makes the residuals correlated, and the sandwich keeps sigma from shrinking with
+     oversampling. It is computed with the capped response and with the response the data
+     ask for at the fitted thickness (uncapped, by BIC), and the larger is kept;
+   * *global*: the second moment of the thickness about the fit over the grid thicknesses
+     (and, with ``fit_film_ior``, of thickness and index over the valley walk), each weighted
+     by its evidence ``exp(−ΔBIC/2)`` summed over every response degree, ``ΔBIC`` scaled by
+     ``(1 − ρ)/(1 + ρ)`` (the effective share of independent samples). Negligible when the
+     thickness is well determined; large when other thicknesses explain the spectrum about as
+     well with some smooth response.
+
+Films thinner than about ``λ / (2 n2)`` show no full fringe in the range: their thickness is in
+the broad shape of ``R``, which a free response and background can mimic. The fit does not hide
+that: the global term then makes sigma comparable to the thickness. A background and a white
+reference pin the response and recover such films to well under 1 %.
 
 Spectrometer pixels integrate over their width: the model averages ``R`` over each pixel (its
 width taken from the sample spacing), sub-sampled finely enough to resolve the thinnest fringes
 in the thickness range, so thick films near the sampling limit lose contrast in the model as they
-do in the instrument, and aliased thicknesses do not fit.
+do in the instrument, and aliased thicknesses do not fit. (The instrument's own resolution, if
+wider than a pixel, is not modelled: it lowers the fringe contrast smoothly, which the free
+response absorbs.)
 
 Examples
 --------
@@ -106,12 +126,13 @@ DEFAULT_THICKNESS_RANGE_NM = (1.0, 10000.0)
 MIN_POINTS = 10
 """Fewest samples a spectrum may have in the fitted wavelength range."""
 
-_CANDIDATES = 2  # lowest local minima of the BIC profile refined per spectrum ...
+_CANDIDATES = 4  # lowest local minima of the profile refined per spectrum ...
 _CANDIDATES_POSITIVE = 1  # ... and lowest among grid thicknesses with a plausible response
+_PRE_ITERATIONS = 3  # Levenberg-Marquardt iterations every start gets before the best are kept
 _COARSE = 64  # wavelengths at which the response's positivity is checked
 _MAX_SUBSAMPLES = 32
 _CAP_FACTOR = 0.75  # response degree <= this × π × fringes (see gain_columns)
-_GAIN_FLOOR = 0.1  # a fitted response must stay above 10 % of its maximum ...
+_GAIN_FLOOR = 0.05  # a fitted response must stay above 5 % of its maximum ...
 _GAIN_FLOOR_GRID = -0.25  # ... on the coarse grid, where it may dip a little below zero
 _PLAUSIBLE_MARGIN = 25.0  # BIC a plausible fit may lose to an implausible one and still win
 _BACKGROUND_FLOOR = 0.05  # a fitted background may not fall below -5 % of the spectrum's maximum
@@ -322,17 +343,17 @@ class _Problem:
         coarse = np.unique(np.linspace(0, self.n - 1, min(_COARSE, self.n)).round().astype(int))
         self.gain_coarse = gain[coarse]
         self.phi_coarse = None if phi is None else phi[coarse]
+        # the plausibility check looks at the response relative to the reference's shape
+        self.gain_shape_coarse = gain[coarse, :1] if reference is not None else np.ones((coarse.size, 1))
         # products of basis columns, for Gram matrices A^T A without forming A
-        G = gain.shape[1]
         self.gain_gain = (gain[:, :, None] * gain[:, None, :])  # (n, G, G)
         if phi is not None:
             self.phi_phi = phi.T @ phi
             self.phi_gain = phi[:, :, None] * gain[:, None, :]  # (n, p_b, G)
-        self.n_gain = G
 
     def gain_columns(self, d):
         """Response columns allowed at thicknesses ``d``: all of them with a reference, else
-        ``degree + 1`` with the degree capped at ``π N / 2`` for ``N`` fringes."""
+        ``degree + 1`` with the degree capped at ``0.75 π N`` for ``N`` fringes."""
         d = np.asarray(d, dtype=np.float64)
         if not self.nested:
             return np.full(d.shape, self.gain.shape[1], dtype=int)
@@ -412,8 +433,8 @@ class _Problem:
 
     def plausible(self, coef, y_max, floor=_GAIN_FLOOR):
         """Whether a fit is physically plausible, checked at a few wavelengths: the response
-        stays above ``floor`` times its maximum, and the fitted background (when there is
-        one) nowhere falls below −:data:`_BACKGROUND_FLOOR` times the spectrum's maximum.
+        (relative to the white reference's shape, when there is one) stays above ``floor`` times
+        its maximum, and the fitted background (when there is one) nowhere falls below −:data:`_BACKGROUND_FLOOR` times the spectrum's maximum.
         coef (..., p, S), y_max (S,).
 
         A real response is positive and does not vanish inside the range, a background adds
@@ -424,7 +445,7 @@ class _Problem:
         grid a thickness slightly off the truth can need a response dipping a little below
         zero, hence a lower floor there."""
         g = coef.shape[-2] - self.p_b
-        G = self.gain_coarse[:, :g] @ coef[..., self.p_b:, :]
+        G = self.gain_coarse[:, :g] @ coef[..., self.p_b:, :] / self.gain_shape_coarse
         ok = np.min(G, axis=-2) > floor * np.max(G, axis=-2)
         if self.p_b:
             B = self.phi_coarse @ coef[..., :self.p_b, :]
@@ -446,11 +467,13 @@ def _grid(problem):
 def _profile(problem, Y, grid, chunk=16):
     """Profile of every grid thickness for every spectrum, each thickness polished by one
     Gauss-Newton step of the variable-projection problem (so that a grid point a fraction of
-    a fringe off the truth still ranks it right, however high the signal-to-noise ratio).
+    a fringe off the truth still ranks near the top, however high the signal-to-noise ratio).
 
-    Returns ``(bic, d, plausible)``, each (K, S): the BIC predicted after the step (the step
-    limited to one grid spacing), the stepped thickness, and whether the response is plausible.
-    Each grid thickness uses the response columns allowed there (:meth:`_Problem.gain_columns`).
+    Returns ``(bic, d, plausible, bic_any)``, each (K, S): the BIC predicted after the step (the
+    step limited to one grid spacing) with the response columns allowed there
+    (:meth:`_Problem.gain_columns`), the stepped thickness, whether the response is plausible,
+    and the exact BIC at the grid thickness with the best response of any degree (for the
+    uncertainty, :func:`_posterior_spread`).
     """
     Yt = Y.T
     S = Y.shape[0]
@@ -460,8 +483,10 @@ def _profile(problem, Y, grid, chunk=16):
     h = grid[1] - grid[0]
     h_d = 1e-4 * problem.lam[0] / problem.q_max
     bic_out = np.empty((K, S))
+    any_out = np.empty((K, S))
     d_out = np.empty((K, S))
     pos_out = np.empty((K, S), dtype=bool)
+    options = problem.column_options()
     for start in range(0, K, chunk):
         d = grid[start:start + chunk]
         g = problem.gain_columns(d)
@@ -470,18 +495,25 @@ def _profile(problem, Y, grid, chunk=16):
         dA = problem.design((problem.reflectance(d + h_d) - R) / h_d, derivative=True)
         P = A.shape[2]
         Q, Rr = _qr(A)
-        used = np.arange(P)[None, :] < (problem.p_b + g)[:, None]  # (k, P), leading columns
+        proj = np.swapaxes(Q, 1, 2) @ Yt  # (k, P, S)
+        # every response degree at once: the columns are nested
+        explained = np.cumsum(proj * proj, axis=1)
+        any_out[start:start + d.size] = np.min(
+            [problem.bic(y2[None, :] - explained[:, problem.p_b + gv - 1], gv, y2[None, :]) for gv in options],
+            axis=0)
+        # the capped response: leading columns only
+        used = np.arange(P)[None, :] < (problem.p_b + g)[:, None]  # (k, P)
         Q = Q * used[:, None, :]
+        proj = proj * used[:, :, None]
         Rr = np.where(used[:, :, None] & used[:, None, :], Rr, np.eye(P)[None])
-        proj = np.swapaxes(Q, 1, 2) @ Yt  # (k, P, S), zero for unused columns
         cost = y2[None, :] - np.einsum("kps,kps->ks", proj, proj)
         coef = np.linalg.solve(Rr, proj)
         # J = dA c (∂(A c)/∂d at fixed c), projected: all through (k, P, ·) products
         dAt = np.swapaxes(dA, 1, 2)
         QtJ = (np.swapaxes(Q, 1, 2) @ dA) @ coef
-        JtJ = np.einsum("kps,kps->ks", coef, (dAt @ dA) @ coef) - np.einsum("kps,kps->ks", QtJ, QtJ)
-        Jtr = np.einsum("kps,kps->ks", coef, dAt @ Yt) - np.einsum("kps,kps->ks", QtJ, proj)
         JJ = np.einsum("kps,kps->ks", coef, (dAt @ dA) @ coef)
+        JtJ = JJ - np.einsum("kps,kps->ks", QtJ, QtJ)
+        Jtr = np.einsum("kps,kps->ks", coef, dAt @ Yt) - np.einsum("kps,kps->ks", QtJ, proj)
         curved = JtJ > 1e-9 * JJ  # else J lies (numerically) in the span of A: no step
         step = np.where(curved, np.clip(Jtr / np.where(curved, JtJ, 1.0), -h, h), 0.0)
         pred = np.maximum(cost - 2.0 * step * Jtr + step * step * JtJ, 0.0)
@@ -489,7 +521,7 @@ def _profile(problem, Y, grid, chunk=16):
         bic_out[sl] = problem.bic(pred, g[:, None], y2[None, :])
         d_out[sl] = np.clip(d[:, None] + step, problem.d_lo, problem.d_hi)
         pos_out[sl] = problem.plausible(coef, y_max, _GAIN_FLOOR_GRID)
-    return bic_out, d_out, pos_out
+    return bic_out, d_out, pos_out, any_out
 
 
 def _local_minima(values, count):
@@ -509,7 +541,7 @@ def _candidates(profile):
     """Start thicknesses (S, M): the lowest local minima of the profile, and the lowest among
     those with a plausible response (a grid point slightly off the truth can need a response
     that dips below zero, and a false solution can be lower still)."""
-    bic, d, plausible = profile
+    bic, d, plausible = profile[:3]
     raw = _local_minima(bic, _CANDIDATES)
     pos = _local_minima(np.where(plausible, bic, np.inf), _CANDIDATES_POSITIVE)
     cols = np.arange(bic.shape[1])[:, None]
@@ -630,15 +662,15 @@ def _levenberg_marquardt(problem, Y, theta, g, iterations=30, freeze_index=False
     return cur
 
 
-def _refine(problem, Y, theta, g, freeze_index=False):
+def _refine(problem, Y, theta, g, freeze_index=False, iterations=30):
     """Refine N problems (rows of Y, theta) with their own response column counts ``g`` (N,);
-    returns (theta, cost, plausible) and the final states per column count."""
+    returns (theta, cost, plausible)."""
     theta_out = theta.copy()
     cost = np.empty(theta.shape[0])
     plausible = np.empty(theta.shape[0], dtype=bool)
     for gv in np.unique(g):
         sel = np.flatnonzero(g == gv)
-        st = _levenberg_marquardt(problem, Y[sel], theta[sel].copy(), int(gv), freeze_index=freeze_index)
+        st = _levenberg_marquardt(problem, Y[sel], theta[sel].copy(), int(gv), iterations, freeze_index)
         theta_out[sel], cost[sel], plausible[sel] = st.theta, st.cost, st.plausible
     return theta_out, cost, plausible
 
@@ -685,11 +717,11 @@ def _covariances(problem, Y, theta, g):
     return cov, fitted, cost, rho
 
 
-def _posterior_spread(problem, Y, grid, theta, bic_fit, rho, chunk=32):
+def _posterior_spread(grid, bic_grid, theta, bic_fit, rho):
     """Second moment (S,) of the thickness about the fit, over the thickness grid and the fit,
-    each weighted by its evidence ``exp(−BIC/2)`` summed over the response's degrees (all of
-    them: the cap protects the estimate, not the uncertainty), with the index offset held at
-    the fit's.
+    each weighted by its evidence ``exp(−BIC/2)``: at each grid thickness the best response of
+    any degree (the cap protects the estimate, not the uncertainty), ``bic_grid`` (K, S) from
+    :func:`_profile` (at the given film index).
 
     The BIC differences are scaled by ``(1 − ρ)/(1 + ρ)``, the effective share of independent
     samples for residuals with lag-1 autocorrelation ``ρ``. Near zero for a well-determined
@@ -697,28 +729,8 @@ def _posterior_spread(problem, Y, grid, theta, bic_fit, rho, chunk=32):
     from the fit explain the spectrum about as well with some smooth response, as for a film
     without a full fringe whose response is not pinned down.
     """
-    S = Y.shape[0]
-    y2 = np.einsum("sn,sn->s", Y, Y)
     shrink = (1.0 - rho) / (1.0 + rho)
-    delta = theta[:, 1] if theta.shape[1] > 1 else np.zeros(S)
-    options = np.array(problem.column_options())
-    # log-evidence of every grid thickness, relative to the fit's
-    logw = np.full((grid.size, S), -np.inf)
-    for dv in np.unique(delta):
-        rows = np.flatnonzero(delta == dv)
-        Yt = Y[rows].T
-        for start in range(0, grid.size, chunk):
-            d = grid[start:start + chunk]
-            R = problem.reflectance(d, np.full(d.size, dv) if problem.k > 1 else None)
-            Q, _ = _qr(problem.design(R))
-            proj = np.swapaxes(Q, 1, 2) @ Yt  # (k, P, s)
-            explained = np.cumsum(proj * proj, axis=1)
-            bic = np.stack([problem.bic(y2[rows][None, :] - explained[:, problem.p_b + g - 1], g,
-                                        y2[rows][None, :]) for g in options])  # (G, k, s)
-            rel = -0.5 * (bic - bic_fit[rows][None, None, :]) * shrink[rows][None, None, :]
-            top = rel.max(axis=0)
-            logw[start:start + d.size, rows] = top + np.log(np.exp(rel - top).sum(axis=0))
-    logw = np.minimum(logw, 50.0)  # a grid point far likelier than the fit: still finite
+    logw = np.minimum(-0.5 * (bic_grid - bic_fit[None, :]) * shrink[None, :], 50.0)
     w = np.exp(logw)
     dev2 = (grid[:, None] - theta[None, :, 0]) ** 2
     return (w * dev2).sum(axis=0) / (1.0 + w.sum(axis=0))
@@ -842,12 +854,14 @@ def _fit_problem(problem, Yfit):
 
     # 1. every order: the profile over the thickness grid
     grid = _grid(problem)
-    d0 = _candidates(_profile(problem, Yfit, grid))
+    profile = _profile(problem, Yfit, grid)
+    d0 = _candidates(profile)
     M = d0.shape[1]
 
     # 2. refine every candidate with the response allowed there; keep the best (a plausible
     #    fit first, then the lowest BIC); then the response's degree by BIC within the cap
-    # (a start found twice for a spectrum is refined once)
+    # (a start found twice for a spectrum is refined once; every start gets a few iterations,
+    # the best two per spectrum, and the best plausible one, are then refined to the end)
     dup = np.zeros((S, M), dtype=bool)
     for j in range(1, M):
         dup[:, j] = np.any(np.isclose(d0[:, :j], d0[:, j:j + 1], rtol=0.0, atol=1e-9), axis=1)
@@ -856,14 +870,27 @@ def _fit_problem(problem, Yfit):
     theta0[:, 0] = d0.reshape(-1)[rows]
     g_flat = problem.gain_columns(theta0[:, 0])
     spectrum = rows // M
-    theta_r, cost_r, plausible_r = _refine(problem, Yfit[spectrum], theta0, g_flat)
+    theta_r, cost_r, plausible_r = _refine(problem, Yfit[spectrum], theta0, g_flat, iterations=_PRE_ITERATIONS)
     bic = np.full(S * M, np.inf)
     bic[rows] = problem.bic(cost_r, g_flat, scale2[spectrum])
     plausible = np.zeros(S * M, dtype=bool)
     plausible[rows] = plausible_r
+    bic, plausible = bic.reshape(S, M), plausible.reshape(S, M)
+    order = np.argsort(bic, axis=1)
+    keep = np.zeros((S, M), dtype=bool)
+    np.put_along_axis(keep, order[:, :2], True, axis=1)
+    np.put_along_axis(keep, np.argmin(np.where(plausible, bic, np.inf), axis=1)[:, None], True, axis=1)
+    keep &= np.isfinite(bic)
+    final = np.flatnonzero(keep.reshape(-1))
+    at = np.searchsorted(rows, final)
+    theta_f, cost_f, plausible_f = _refine(problem, Yfit[final // M], theta_r[at], g_flat[at])
+    bic = np.full(S * M, np.inf)
+    bic[final] = problem.bic(cost_f, g_flat[at], scale2[final // M])
+    plausible = np.zeros(S * M, dtype=bool)
+    plausible[final] = plausible_f
     best = _choose(bic.reshape(S, M), plausible.reshape(S, M)) + np.arange(S) * M
-    where = np.searchsorted(rows, best)  # the winners' rows among the refined ones
-    theta, g_best, Yb, plausible = theta_r[where], g_flat[where], Yfit, plausible_r[where]
+    where = np.searchsorted(final, best)  # the winners among the refined ones
+    theta, g_best, Yb, plausible = theta_f[where], g_flat[at][where], Yfit, plausible_f[where]
     if problem.nested:
         g_low = _best_gain_columns(problem, Yb, theta, 1, problem.gain_columns(theta[:, 0]))
         redo = np.flatnonzero(g_low != g_best)
@@ -886,7 +913,7 @@ def _fit_problem(problem, Yfit):
     cov_free, _, cost_free, rho_free = _covariances(problem, Yb, theta, g_free)
     var = np.maximum(np.einsum("skk->sk", cov), np.einsum("skk->sk", cov_free)) + var_valley
     bic_free = problem.bic(cost_free, g_free, scale2)
-    var[:, 0] += _posterior_spread(problem, Yb, grid, theta, bic_free, rho_free)
+    var[:, 0] += _posterior_spread(grid, profile[3], theta, bic_free, rho_free)
     return {"problem": problem, "theta": theta, "var": var, "cost": cost, "fitted": fitted,
             "g": g_best, "p_lin": problem.p_b + g_best}
 
