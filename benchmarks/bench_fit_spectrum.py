@@ -3,13 +3,14 @@ spectra, against a naive baseline measured in the same run.
 
 Spectra: films on one wavelength grid (400-850 nm, 600 samples), thicknesses log-uniform in
 50-5000 nm, reflectance from ``tmm`` (an independent transfer-matrix code) times a random
-smooth instrument response, plus a background and 0.5 % noise: raw counts, no background or
-reference files (``--with-files`` adds them, as the thin films need).
+smooth instrument response (its own for each spectrum), plus a background and 0.5 % noise: raw
+counts, no background or reference files. ``--with-files``: one instrument for all spectra, with
+its dark and white readings given (as the thin films need).
 
 Baseline: what one would write first: per spectrum, the model ``B + G·R(d)`` (B a line and G a
 cubic in 1/λ, as ours) fitted by ``scipy.optimize.least_squares`` over all its parameters,
 started from the best of a coarse thickness grid (the response started flat at the mean
-level). It is slow (one spectrum at a time, finite-difference Jacobians) and falls into the
+level); with ``--with-files`` it fits the normalised ``(I − dark)/(white − dark)``. It is slow (one spectrum at a time, finite-difference Jacobians) and falls into the
 wrong interference order whenever the start is a fringe off.
 
 Usage::
@@ -40,20 +41,29 @@ def _tmm_reflectance(lam, d, n2, n3, k3):
     return out
 
 
-def make_spectra(count, n2, n3, k3, seed, lam):
+def _instrument(rng, t):
+    response = 1000.0 * np.exp(rng.uniform(-0.5, 0.5) * t + rng.uniform(-0.4, 0.4) * t * t)
+    return response, 20.0 + rng.uniform(-5.0, 5.0) * t
+
+
+def make_spectra(count, n2, n3, k3, seed, lam, one_instrument):
+    """Thicknesses and raw spectra; each spectrum its own random instrument, or (with
+    ``one_instrument``) one instrument for all, whose dark and white readings are returned."""
     rng = np.random.default_rng(seed)
     d = np.exp(rng.uniform(np.log(50.0), np.log(5000.0), count))
     t = (lam - lam.mean()) / (0.5 * np.ptp(lam))
-    raw, dark, white = [], [], []
+    shared = _instrument(rng, t)
+    raw = []
     for di in d:
         R = _tmm_reflectance(lam, di, n2, n3, k3)
-        response = 1000.0 * np.exp(rng.uniform(-0.5, 0.5) * t + rng.uniform(-0.4, 0.4) * t * t)
-        background = 20.0 + rng.uniform(-5.0, 5.0) * t
+        response, background = shared if one_instrument else _instrument(rng, t)
         sigma = 0.005 * np.mean(response * R)
         raw.append(background + response * R + rng.normal(0.0, sigma, lam.size))
-        dark.append(background + rng.normal(0.0, sigma, lam.size))
-        white.append(background + 0.95 * response + rng.normal(0.0, sigma, lam.size))
-    return d, np.array(raw), np.array(dark), np.array(white)
+    response, background = shared
+    sigma = 0.005 * np.mean(response) * 0.05
+    dark = background + rng.normal(0.0, sigma, lam.size)
+    white = background + 0.95 * response + rng.normal(0.0, sigma, lam.size)
+    return d, np.array(raw), dark, white
 
 
 def naive_fit(lam, y, model, d_range=(1.0, 10000.0), grid_points=40):
@@ -105,7 +115,7 @@ def main(argv=None):
     n2, n3, k3 = SUBSTRATES[args.substrate]
     lam = np.linspace(400.0, 850.0, 600)
     t0 = time.perf_counter()
-    truth, raw, dark, white = make_spectra(args.count, n2, n3, k3, args.seed, lam)
+    truth, raw, dark, white = make_spectra(args.count, n2, n3, k3, args.seed, lam, args.with_files)
     print(f"{args.count} spectra, film n={n2} on n3={n3}+{k3}i, {lam.size} samples 400-850 nm, "
           f"{'with background and reference' if args.with_files else 'raw counts only'} "
           f"(generated with tmm in {time.perf_counter() - t0:.1f} s)")
@@ -113,14 +123,12 @@ def main(argv=None):
     naive_idx = np.linspace(0, args.count - 1, min(args.naive_count, args.count)).round().astype(int)
 
     def robust():
-        if args.with_files:  # each spectrum has its own readings: one call each
-            return [fit_spectra(lam, raw[i], model, background=dark[i], reference=white[i])[0].thickness_nm
-                    for i in range(args.count)]
-        return [f.thickness_nm for f in fit_spectra(lam, raw, model)]
+        files = {"background": dark, "reference": white} if args.with_files else {}
+        return [f.thickness_nm for f in fit_spectra(lam, raw, model, **files)]
 
     def naive():
         if args.with_files:
-            return [naive_fit(lam, (raw[i] - dark[i]) / (white[i] - dark[i]), model) for i in naive_idx]
+            return [naive_fit(lam, (raw[i] - dark) / (white - dark), model) for i in naive_idx]
         return [naive_fit(lam, raw[i], model) for i in naive_idx]
 
     times_r, times_n = [], []
