@@ -68,8 +68,9 @@ Algorithm (the user chooses no method and no interference order):
      thickness is well determined; large when other thicknesses explain the spectrum about as
      well with some smooth response.
 
-Films thinner than about ``λ / (2 n2)`` show no full fringe in the range: their thickness is in
-the broad shape of ``R``, which a free response and background can mimic. The fit does not hide
+Films with less than about one fringe across the range (thinner than ``1 / (2 n2 (1/λ_min −
+1/λ_max))``, about 280 nm for a soap film over 400-850 nm) have their thickness in the broad
+shape of ``R``, which a free response and background can mimic. The fit does not hide
 that: the global term then makes sigma comparable to the thickness. A background and a white
 reference pin the response and recover such films to well under 1 %.
 
@@ -454,7 +455,7 @@ class _Problem:
 
 
 # ---------------------------------------------------------------------------
-# Step 1: BIC profile on a thickness grid, all spectra of a grid at once
+# Step 1: the profile over a thickness grid, all spectra of a wavelength grid at once
 # ---------------------------------------------------------------------------
 
 
@@ -571,7 +572,7 @@ class _State:
     FIELDS = ("theta", "coef", "fitted", "resid", "cost", "plausible", "R", "gram", "J", "JtJ", "Jtr")
 
     def __init__(self, problem, Y, theta, g, jacobian=True):
-        self.problem, self.g, self.Y = problem, g, Y
+        self.problem, self.g = problem, g
         self.theta = theta
         d, delta = self.split(theta)
         self.R = problem.reflectance(d, delta)
