@@ -102,6 +102,27 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--quick", action="store_true", help="small images, under 10 minutes on 2 cores")
     b.add_argument("--out", required=True)
     b.set_defaults(target="thinfilm.benchmark:cli_main")
+
+    fs = sub.add_parser("fit-spectrum", help="film thickness (and index) from measured reflection spectra")
+    fs.add_argument("spectra", nargs="+", metavar="SPECTRUM",
+                    help="two-column text file: wavelength in nm, value (comma or whitespace separated)")
+    fs.add_argument("--film-ior", required=True, metavar="N|MATERIAL|cauchy:A,B[,C]",
+                    help="film index: a number, a material, or Cauchy n = A + B/λ² + C/λ⁴ with λ in nm")
+    fs.add_argument("--substrate-ior", required=True, metavar="N3",
+                    help="substrate index, a number or a material (1 for a free-standing film in air)")
+    fs.add_argument("--substrate-k", type=float, default=None, metavar="K", help="substrate extinction k3")
+    fs.add_argument("--angle", type=float, default=0.0, metavar="DEG",
+                    help="angle of incidence in degrees (default: %(default)s; unpolarized light)")
+    fs.add_argument("--background", default=None, metavar="FILE",
+                    help="spectrum without film reflection (a black film, a dark reading)")
+    fs.add_argument("--reference", default=None, metavar="FILE", help="spectrum of a white reference")
+    fs.add_argument("--wavelength-range", type=float, nargs=2, metavar=("MIN", "MAX"), default=None,
+                    help="fit only these wavelengths (nm)")
+    fs.add_argument("--thickness-range", type=float, nargs=2, metavar=("MIN", "MAX"), default=None,
+                    help="thicknesses searched (nm; default 1 to 10000, less where the sampling is coarse)")
+    fs.add_argument("--fit-film-ior", action="store_true", help="fit the film index too")
+    fs.add_argument("--json", action="store_true", help="one JSON object per line, one per spectrum")
+    fs.set_defaults(target="thinfilm.fit_spectrum:cli_main")
     return p
 
 

@@ -1,0 +1,384 @@
+"""``thinfilm fit-spectrum``: film thickness (and index) from measured reflection spectra.
+
+::
+
+    thinfilm fit-spectrum SPECTRUM... --film-ior N|MATERIAL|cauchy:A,B[,C] --substrate-ior N3
+        [--substrate-k K] [--angle DEG] [--background FILE] [--reference FILE]
+        [--wavelength-range MIN MAX] [--thickness-range MIN MAX] [--fit-film-ior] [--json]
+
+Each SPECTRUM is fitted on its own (spectra sharing a wavelength grid are fitted in one batch);
+the algorithm, its model of the instrument and its uncertainties are described in
+:mod:`thinfilm.reconstruction.spectrum_fit`.
+
+Files
+-----
+Two columns, wavelength in nm and value, separated by commas or whitespace. Lines starting
+with ``#`` (and anything after a ``#``) are comments; one header line before the data is
+allowed. Wavelengths must be strictly increasing or strictly decreasing (a decreasing file is
+read backwards); repeated or unordered wavelengths are refused, never silently sorted.
+NaN or infinite values are refused inside the fitted wavelength range and ignored outside
+it. ``--background`` (a spectrum without film reflection: a black film, a dark reading) and
+``--reference`` (a white reflector) are read the same way and interpolated linearly onto each
+spectrum's wavelengths; they must cover its fitted range.
+
+Indices
+-------
+``--film-ior`` is a number, a shipped material name (:func:`thinfilm.bsdf.material_names`) or
+``cauchy:A,B[,C]``, meaning ``n = A + B/λ² + C/λ⁴`` with λ in **nm**. ``--substrate-ior`` is a
+number or a material name (``1`` for a free-standing film in air); ``--substrate-k`` its
+extinction. With ``--fit-film-ior`` an offset to the film index is fitted (the given index is
+the start) and reported at the middle of the fitted range.
+
+Errors
+------
+Every input is checked before anything is fitted: each bad file gets one line on stderr and
+the exit code is 2, and no spectrum is fitted. (Fitting the good ones would leave a batch that
+silently lacks rows; a user fixes or drops the bad file and runs again.)
+
+Output
+------
+A table, or with ``--json`` one JSON object per line, one per SPECTRUM in the order given::
+
+    {"path": ..., "thickness_nm": ..., "thickness_sigma_nm": ..., "film_ior": ...,
+     "film_ior_wavelength_nm": ..., "film_ior_sigma": ... (with --fit-film-ior),
+     "chi2": ..., "rms_residual": ..., "fringes": ..., "n_points": ...,
+     "wavelength_range_nm": [min, max], "at_bound": ...}
+
+``chi2`` is the reduced chi-square against the spectrum's own point-to-point noise (well above
+1: a misfit, or a smoothed spectrum); ``rms_residual`` is in the units of the spectrum;
+``at_bound`` flags a thickness on an end of ``--thickness-range``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .errors import UserError
+
+__all__ = ["read_spectrum", "parse_index", "cli_main", "Spectrum"]
+
+
+@dataclass
+class Spectrum:
+    """A spectrum read from a file: increasing wavelengths (nm), values, and the file's line
+    number of each sample (for messages)."""
+
+    path: str
+    wavelengths_nm: np.ndarray
+    values: np.ndarray
+    lines: np.ndarray
+    what: str = "spectrum"
+
+
+def _fields(text):
+    """The cells of one data line: comma-separated if it has a comma, else whitespace."""
+    if "," in text:
+        cells = [c.strip() for c in text.split(",")]
+        if cells and cells[-1] == "":  # a trailing delimiter
+            cells.pop()
+        return cells
+    return text.split()
+
+
+def read_spectrum(path, what="spectrum") -> Spectrum:
+    """Read a two-column spectrum file (see the module docstring for the format).
+
+    Raises :class:`~thinfilm.errors.UserError` with one sentence naming the file (and the line)
+    for a missing or unreadable file, a cell that is not a number, a line without exactly two
+    cells, a non-positive or non-finite wavelength, repeated or unordered wavelengths, and a
+    file without data.
+    """
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise UserError(f"{what} file {path}: no such file") from None
+    except IsADirectoryError:
+        raise UserError(f"{what} file {path}: is a folder, expected a two-column text file") from None
+    except UnicodeDecodeError:
+        raise UserError(f"{what} file {path}: not a text file (expected two columns: wavelength in nm, value)") from None
+    except OSError as e:
+        raise UserError(f"{what} file {path}: cannot be read ({e.strerror or e})") from None
+
+    rows, lines = [], []
+    header_allowed = True
+    for number, raw in enumerate(text.splitlines(), start=1):
+        line = raw.split("#", 1)[0].strip()
+        if not line:
+            continue
+        cells = _fields(line)
+        try:
+            values = [float(c) for c in cells]
+        except ValueError:
+            if header_allowed:
+                header_allowed = False
+                continue
+            bad = next(c for c in cells if not _is_number(c))
+            raise UserError(f"{what} file {path}, line {number}: {bad!r} is not a number") from None
+        header_allowed = False
+        if len(values) != 2:
+            raise UserError(f"{what} file {path}, line {number}: expected two columns "
+                            f"(wavelength in nm, value), found {len(values)}")
+        if not math.isfinite(values[0]) or values[0] <= 0.0:
+            raise UserError(f"{what} file {path}, line {number}: the wavelength must be a positive "
+                            f"number of nm, got {cells[0]!r}")
+        rows.append(values)
+        lines.append(number)
+    if not rows:
+        raise UserError(f"{what} file {path}: no data (expected two columns: wavelength in nm, value)")
+    data = np.asarray(rows, dtype=np.float64)
+    lines = np.asarray(lines)
+    lam = data[:, 0]
+    step = np.diff(lam)
+    if lam.size > 1 and np.all(step < 0):
+        data, lines = data[::-1], lines[::-1]
+        lam = data[:, 0]
+        step = np.diff(lam)
+    if np.any(step <= 0):
+        i = int(np.argmax(step <= 0)) + 1
+        if step[i - 1] == 0:
+            raise UserError(f"{what} file {path}, line {lines[i]}: wavelength {lam[i]:g} nm repeats "
+                            f"the line before (wavelengths must be strictly increasing or decreasing)")
+        raise UserError(f"{what} file {path}, line {lines[i]}: wavelength {lam[i]:g} nm is out of order "
+                        f"(wavelengths must be strictly increasing or decreasing)")
+    return Spectrum(str(path), lam.copy(), data[:, 1].copy(), lines, what)
+
+
+def _is_number(text):
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def parse_index(text, option="--film-ior", allow_cauchy=True):
+    """A dispersion model from ``N``, a material name or ``cauchy:A,B[,C]`` (λ in nm).
+
+    Examples
+    --------
+    >>> round(float(parse_index("cauchy:1.5,4000")(500.0)), 4)
+    1.516
+    >>> parse_index("1.33")(600.0)
+    1.33
+    """
+    from thinfilm.bsdf.materials import as_dispersion, material_names
+
+    text = str(text).strip()
+    if allow_cauchy and text.lower().startswith("cauchy:"):
+        cells = [c.strip() for c in text[7:].split(",")]
+        try:
+            coef = [float(c) for c in cells]
+        except ValueError:
+            coef = []
+        if not 1 <= len(coef) <= 3 or not all(math.isfinite(c) for c in coef):
+            raise UserError(f"{option}: expected cauchy:A,B[,C] with numbers (n = A + B/λ² + C/λ⁴, "
+                            f"λ in nm), got {text!r}")
+        if coef[0] <= 0:
+            raise UserError(f"{option}: the Cauchy constant A must be positive, got {coef[0]:g}")
+        coef += [0.0] * (3 - len(coef))
+        # the shipped Cauchy model takes λ in µm: B nm² = B·1e-6 µm², C nm⁴ = C·1e-12 µm⁴
+        return as_dispersion({"cauchy": [coef[0], coef[1] * 1e-6, coef[2] * 1e-12]})
+    try:
+        value = float(text)
+    except ValueError:
+        names = material_names()
+        if text.lower() not in {m.lower() for m in names}:
+            forms = "a number, cauchy:A,B[,C] or" if allow_cauchy else "a number or"
+            raise UserError(f"{option}: expected {forms} a material ({', '.join(names)}), "
+                            f"got {text!r}") from None
+        return as_dispersion(text)
+    if not math.isfinite(value) or value <= 0:
+        raise UserError(f"{option}: the refractive index must be a positive number, got {text}")
+    return as_dispersion(value)
+
+
+# ---------------------------------------------------------------------------
+# The command
+# ---------------------------------------------------------------------------
+
+
+def _check_options(args):
+    """The options, checked before any file is read. Returns (FilmModel, wavelength range,
+    thickness range)."""
+    from thinfilm.reconstruction.spectrum_fit import FilmModel
+
+    film = parse_index(args.film_ior, "--film-ior")
+    substrate = parse_index(args.substrate_ior, "--substrate-ior", allow_cauchy=False)
+    k3 = args.substrate_k
+    if k3 is not None and not (math.isfinite(k3) and k3 >= 0):
+        raise UserError(f"--substrate-k: the extinction must be a number >= 0, got {k3:g}")
+    angle = float(args.angle)
+    if not (math.isfinite(angle) and 0.0 <= angle < 90.0):
+        raise UserError(f"--angle: the angle of incidence must be in [0, 90) degrees, got {angle:g}")
+    lam_range = None
+    if args.wavelength_range is not None:
+        lo, hi = args.wavelength_range
+        if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo < hi):
+            raise UserError(f"--wavelength-range: expected MIN MAX with 0 < MIN < MAX nm, got {lo:g} {hi:g}")
+        lam_range = (lo, hi)
+    d_range = None
+    if args.thickness_range is not None:
+        lo, hi = args.thickness_range
+        if not (math.isfinite(lo) and math.isfinite(hi) and 0 <= lo < hi):
+            raise UserError(f"--thickness-range: expected MIN MAX with 0 <= MIN < MAX nm, got {lo:g} {hi:g}")
+        d_range = (lo, hi)
+    return FilmModel(film, substrate, k3, angle), lam_range, d_range
+
+
+def _fitted_part(spec, lam_range, min_points):
+    """The samples of ``spec`` in the wavelength range, checked: enough of them, all finite."""
+    keep = np.ones(spec.wavelengths_nm.size, dtype=bool)
+    where = ""
+    if lam_range is not None:
+        keep = (spec.wavelengths_nm >= lam_range[0]) & (spec.wavelengths_nm <= lam_range[1])
+        where = f" between {lam_range[0]:g} and {lam_range[1]:g} nm"
+        if not np.any(keep):
+            raise UserError(f"spectrum file {spec.path}: no samples{where} "
+                            f"(the file covers {spec.wavelengths_nm[0]:g}-{spec.wavelengths_nm[-1]:g} nm)")
+    count = int(keep.sum())
+    if count < min_points:
+        raise UserError(f"spectrum file {spec.path}: {count} samples{where}, at least {min_points} needed")
+    bad = keep & ~np.isfinite(spec.values)
+    if np.any(bad):
+        line = spec.lines[np.argmax(bad)]
+        raise UserError(f"spectrum file {spec.path}, line {line}: the value is not a finite number "
+                        f"(NaN or infinite values are refused inside the fitted range)")
+    return spec.wavelengths_nm[keep], spec.values[keep]
+
+
+def _on_grid(aux, lam, spec_path):
+    """An auxiliary spectrum (background or reference) interpolated onto wavelengths ``lam``."""
+    what = aux.what
+    lo, hi = aux.wavelengths_nm[0], aux.wavelengths_nm[-1]
+    tol = 1e-9 * hi
+    if lam[0] < lo - tol or lam[-1] > hi + tol:
+        raise UserError(f"{what} file {aux.path} covers {lo:g}-{hi:g} nm but spectrum {spec_path} is "
+                        f"fitted over {lam[0]:g}-{lam[-1]:g} nm (narrow it with --wavelength-range)")
+    # the samples interpolation uses: those in the range and the two bracketing it
+    first = max(int(np.searchsorted(aux.wavelengths_nm, lam[0], side="right")) - 1, 0)
+    last = min(int(np.searchsorted(aux.wavelengths_nm, lam[-1], side="left")), aux.wavelengths_nm.size - 1)
+    seg = slice(first, last + 1)
+    bad = ~np.isfinite(aux.values[seg])
+    if np.any(bad):
+        line = aux.lines[seg][np.argmax(bad)]
+        raise UserError(f"{what} file {aux.path}, line {line}: the value is not a finite number "
+                        f"(NaN or infinite values are refused inside the fitted range)")
+    return np.interp(lam, aux.wavelengths_nm, aux.values)
+
+
+def _format_row(r):
+    out = {
+        "path": r["path"],
+        "thickness_nm": r["fit"].thickness_nm,
+        "thickness_sigma_nm": r["fit"].thickness_sigma_nm,
+        "film_ior": r["fit"].film_ior,
+        "film_ior_wavelength_nm": r["fit"].film_ior_wavelength_nm,
+    }
+    if r["fit"].film_ior_sigma is not None:
+        out["film_ior_sigma"] = r["fit"].film_ior_sigma
+    out.update({
+        "chi2": r["fit"].chi2,
+        "rms_residual": r["fit"].rms_residual,
+        "fringes": r["fit"].fringes,
+        "n_points": r["fit"].n_points,
+        "wavelength_range_nm": [float(r["lam"][0]), float(r["lam"][-1])],
+        "at_bound": r["fit"].at_bound,
+    })
+    return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in out.items()}
+
+
+def _table(rows, fit_ior):
+    """A readable table, one row per spectrum."""
+    def num(v, fmt):
+        return "-" if v is None or not math.isfinite(v) else format(v, fmt)
+
+    head = ["spectrum", "thickness_nm", "sigma_nm"]
+    if fit_ior:
+        head += ["film_ior", "sigma"]
+    head += ["chi2", "rms_residual", "fringes", "note"]
+    body = []
+    for r in rows:
+        f = r["fit"]
+        cells = [r["path"], num(f.thickness_nm, ".2f"), num(f.thickness_sigma_nm, ".2g")]
+        if fit_ior:
+            cells += [num(f.film_ior, ".4f"), num(f.film_ior_sigma, ".2g")]
+        cells += [num(f.chi2, ".3g"), num(f.rms_residual, ".3g"), num(f.fringes, ".1f"),
+                  "at the end of --thickness-range" if f.at_bound else ""]
+        body.append(cells)
+    widths = [max(len(str(x[i])) for x in [head] + body) for i in range(len(head))]
+    lines = []
+    for cells in [head] + body:
+        text = "  ".join(str(c).ljust(w) if i in (0, len(head) - 1) else str(c).rjust(w)
+                         for i, (c, w) in enumerate(zip(cells, widths)))
+        lines.append(text.rstrip())
+    if fit_ior and rows:
+        lines.append(f"(film_ior at {rows[0]['fit'].film_ior_wavelength_nm:.0f} nm, the middle of the fitted range)")
+    return "\n".join(lines)
+
+
+def cli_main(args):
+    """Run ``thinfilm fit-spectrum`` (arguments as declared in :mod:`thinfilm.cli`)."""
+    from thinfilm.reconstruction.spectrum_fit import MIN_POINTS, fit_spectra
+
+    model, lam_range, d_range = _check_options(args)
+
+    # every input first; one line per bad file, nothing fitted if any is bad
+    errors = []
+    aux = {}
+    for what, path in (("background", args.background), ("reference", args.reference)):
+        if path is None:
+            continue
+        try:
+            aux[what] = read_spectrum(path, what)
+        except UserError as e:
+            errors.append(str(e))
+    prepared = []
+    for path in args.spectra:
+        try:
+            spec = read_spectrum(path)
+            lam, values = _fitted_part(spec, lam_range, MIN_POINTS)
+            extra = {what: _on_grid(a, lam, path) for what, a in aux.items()}
+            if "reference" in extra:
+                level = extra["reference"] - extra.get("background", 0.0)
+                if not np.all(level > 0):
+                    at = lam[np.argmax(~(level > 0))]
+                    raise UserError(f"reference file {aux['reference'].path} is not above "
+                                    f"{'the background' if 'background' in extra else 'zero'} at {at:g} nm "
+                                    f"(a white reference must be brighter than the dark level)")
+            n2 = model.film_ior(lam)
+            if not np.all(np.asarray(n2) > 0):
+                raise UserError(f"--film-ior: the index is not positive over {path}'s fitted range "
+                                f"{lam[0]:g}-{lam[-1]:g} nm")
+            prepared.append({"path": path, "lam": lam, "values": values, **extra})
+        except UserError as e:
+            errors.append(str(e))
+    if errors:
+        for message in errors:
+            print(f"thinfilm: error: {message}", file=sys.stderr)
+        return 2
+
+    # spectra sharing a wavelength grid: one batch
+    groups = {}
+    for i, r in enumerate(prepared):
+        groups.setdefault((r["lam"].size, r["lam"].tobytes()), []).append(i)
+    for members in groups.values():
+        first = prepared[members[0]]
+        fits = fit_spectra(first["lam"], np.stack([prepared[i]["values"] for i in members]), model,
+                           background=first.get("background"), reference=first.get("reference"),
+                           thickness_range_nm=d_range, fit_film_ior=args.fit_film_ior)
+        for i, f in zip(members, fits):
+            prepared[i]["fit"] = f
+
+    if args.json:
+        for r in prepared:
+            print(json.dumps(_format_row(r)))
+    else:
+        print(_table(prepared, args.fit_film_ior))
+    return 0
