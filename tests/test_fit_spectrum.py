@@ -12,7 +12,7 @@ import tmm
 
 from thinfilm.bsdf.materials import Cauchy
 from thinfilm.cli import main
-from thinfilm.errors import UserError
+from thinfilm.core.errors import UserError
 from thinfilm.fit_spectrum import parse_index, read_spectrum
 from thinfilm.reconstruction.spectrum_fit import FilmModel, fit_spectra
 

@@ -59,7 +59,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import UserError
+from thinfilm.core.errors import UserError
 
 __all__ = ["read_spectrum", "parse_index", "cli_main", "Spectrum"]
 
