@@ -89,7 +89,7 @@ def _fields(text):
 def read_spectrum(path, what="spectrum") -> Spectrum:
     """Read a two-column spectrum file (see the module docstring for the format).
 
-    Raises :class:`~thinfilm.errors.UserError` with one sentence naming the file (and the line)
+    Raises :class:`~thinfilm.core.errors.UserError` with one sentence naming the file (and the line)
     for a missing or unreadable file, a cell that is not a number, a line without exactly two
     cells, a non-positive or non-finite wavelength, repeated or unordered wavelengths, and a
     file without data.
