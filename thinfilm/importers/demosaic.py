@@ -28,8 +28,9 @@ Two kinds of output pixel cannot be trusted (:func:`footprint`, :func:`edge_pixe
   sides of the edge, and their differences (the polarization) are meaningless there. Such
   pixels are found on a polarization-insensitive intensity image (the largest plane-normalized
   value in each 2 × 2 window, which always holds a polarizer angle within 45° of the light's
-  polarization), split into dark and lit by Otsu's threshold on its logarithm when the two
-  classes lie more than a decade apart, and marked within the interpolation reach of the split.
+  polarization), split into dark and lit on its logarithm (Otsu's classes, split halfway
+  between their medians) when the two classes lie more than a decade apart, and marked within
+  the interpolation reach of the split (plus a margin).
 """
 
 from __future__ import annotations
@@ -198,7 +199,9 @@ def edge_pixels(raw, pattern, margin: int = 2) -> np.ndarray:
     lo, hi = lb[lb <= t], lb[lb > t]
     if lo.size == 0 or hi.size == 0 or np.median(hi) - np.median(lo) < 1.0:
         return np.zeros(raw.shape, dtype=bool)
-    lit = lb > t
+    # Otsu's threshold only separates the classes (it may sit at the edge of a tight one):
+    # split halfway between their medians, in the gap
+    lit = lb > 0.5 * (np.median(lo) + np.median(hi))
     P, Q = pattern.shape
     reach = np.ones((2 * (P - 1 + margin) + 1, 2 * (Q - 1 + margin) + 1), dtype=bool)
     return ndimage.binary_dilation(lit, reach) & ndimage.binary_dilation(~lit, reach)

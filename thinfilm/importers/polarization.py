@@ -269,6 +269,7 @@ def import_polarization(images, out, layout, angles=None, pattern=None, bit_dept
 
     # 5: gains to reflectance units
     inputs = [file_record(img.path, "capture") for img in imgs]
+    inputs += [r for r in (cal.dark_record, cal.flat_record) if isinstance(r, dict)]
     calib = cal.record()
     if white_balance is not None:
         gains = np.asarray(parse_numbers(white_balance, "--white-balance", 3))
