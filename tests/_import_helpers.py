@@ -89,7 +89,8 @@ def write_png(path, arr, sbit=None):
 def write_tiff(path, arr):
     import tifffile
 
-    tifffile.imwrite(path, np.asarray(arr))
+    arr = np.asarray(arr)
+    tifffile.imwrite(path, arr, photometric="rgb" if arr.ndim == 3 and arr.shape[-1] == 3 else "minisblack")
     return path
 
 

@@ -83,7 +83,8 @@ def read_cube(path, what: str = "cube") -> _Cube:
     p = Path(path).expanduser()
     if not p.is_file():
         raise UserError(f"{p}: {what} file not found")
-    hdr = _envi_header(p)
+    is_tiff = p.read_bytes()[:4] in (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+")
+    hdr = None if is_tiff else _envi_header(p)
     if hdr is not None:
         import spectral.io.envi as envi
 
@@ -106,8 +107,7 @@ def read_cube(path, what: str = "cube") -> _Cube:
             fwhm *= 1000.0
         source = hdr
     else:
-        head = p.read_bytes()[:4]
-        if head not in (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+"):
+        if not is_tiff:
             raise UserError(f"{p}: the {what} is neither an ENVI file (no .hdr beside it) nor a TIFF file")
         import tifffile
 
