@@ -24,6 +24,8 @@ def files(tmp_path):
     f["mosaic_small"] = write_tiff(tmp_path / "mosaic_small.tif", np.full((12, 16), 30000, np.uint16))
     f["mosaic_tiny"] = write_tiff(tmp_path / "tiny.tif", np.full((6, 6), 30000, np.uint16))
     f["mosaic8"] = write_png(tmp_path / "mosaic8.png", np.full((16, 16), 100, np.uint8))
+    f["mosaic_sat"] = write_tiff(tmp_path / "sat.tif", np.full((16, 16), 65535, np.uint16))
+    f["mosaic_zero"] = write_tiff(tmp_path / "zero.tif", np.zeros((16, 16), np.uint16))
     f["rgb16"] = write_tiff(tmp_path / "rgb16.tif", np.full((16, 16, 3), 30000, np.uint16))
     f["rgb16_8"] = write_tiff(tmp_path / "rgb16_8.tif", np.full((8, 8, 3), 30000, np.uint16))
     f["float_nan"] = write_tiff(tmp_path / "nan.tif", np.where(np.eye(16) > 0, np.nan, 0.5).astype(np.float32))
@@ -84,9 +86,9 @@ CASES = {
     "multi-page tiff": lambda f: (POL + [str(f["pages"]), "--layout", "dofp-rgb"], "pages"),
     "float NaN": lambda f: (POL + [str(f["float_nan"]), "--layout", "dofp-rgb"], "NaN"),
     "bit depth above container": lambda f: (POL + [str(f["mosaic8"]), "--layout", "dofp-rgb", "--bit-depth", "12"],
-                                            "8-bit samples"),
+                                            "holds 8-bit samples"),
     "values above bit depth": lambda f: (POL + [str(f["mosaic16"]), "--layout", "dofp-rgb", "--bit-depth", "12"],
-                                         "more than --bit-depth 12"),
+                                         "above the largest 12-bit value"),
     "mixed bit depths": lambda f: (POL + [str(f["rgb0"]), str(f["rgb16_8"]), str(f["rgb90"]), "--layout", "separate",
                                           "--angles", "0,45,90"], "holds 8-bit samples"),
     "shapes differ": lambda f: (POL + _rgb(f, 0, 45) + [str(f["rgb_small"]), "--layout", "separate",
@@ -99,6 +101,14 @@ CASES = {
                                                str(f["mosaic_small"])], "--white-reference image has shape"),
     "dark level too high": lambda f: (POL + [str(f["mosaic16"]), "--layout", "dofp-rgb", "--dark", "70000"],
                                       "not below the largest code"),
+    "dark of another bit depth": lambda f: (POL + [str(f["mosaic16"]), "--layout", "dofp-rgb", "--dark",
+                                                   str(f["mosaic8"])], "bit depth of the images is 16 bits"),
+    "saturated white reference": lambda f: (POL + [str(f["mosaic16"]), "--layout", "dofp-rgb", "--white-reference",
+                                                   str(f["mosaic_sat"])], "saturated everywhere"),
+    "flat at the dark level": lambda f: (POL + [str(f["mosaic16"]), "--layout", "dofp-rgb", "--flat",
+                                                str(f["mosaic_zero"])], "at or below the dark level"),
+    "everything saturated": lambda f: (POL + [str(f["mosaic_sat"]), "--layout", "dofp-rgb", "--white-balance",
+                                              "1,1,1"], "no pixel is usable"),
     "missing dark": lambda f: (POL + [str(f["mosaic16"]), "--layout", "dofp-rgb", "--dark", str(f["missing"])],
                                "file not found"),
     # polarization: layouts and angles

@@ -85,11 +85,11 @@ def apply_bit_depth(img: CameraImage, bits: int | None, where: str = "--bit-dept
     if bits is None or img.is_float:
         return img
     if bits > img.container_bits:
-        raise UserError(f"{img.path}: {where} {bits} but the file holds {img.container_bits}-bit samples")
+        raise UserError(f"{img.path}: {where} is {bits} bits but the file holds {img.container_bits}-bit samples")
     top = int(img.data.max())
     if top > 2 ** bits - 1:
-        raise UserError(f"{img.path}: holds values up to {top}, more than {where} {bits} allows "
-                        f"({2 ** bits - 1})")
+        raise UserError(f"{img.path}: holds values up to {top}, above the largest {bits}-bit value "
+                        f"{2 ** bits - 1} ({where})")
     return CameraImage(img.data, int(bits), img.container_bits, img.path)
 
 

@@ -33,6 +33,7 @@ Calibration, in this order, on the raw values of every image (and of the referen
    the reference's unsaturated pixels of colour c). Without either, the images are in relative
    units: ``meta.json`` says so and a warning is printed.
 
+Values must be linear in the light (raw data, or raw-developed without gamma or tone curve).
 The dataset holds ``polarized_rgb.exr`` (float32), ``valid.exr`` (pixels free of saturation and,
 with ``dofp-rgb``, off the object's silhouette, see :func:`thinfilm.importers.demosaic.edge_pixels`;
 the reconstructions use only these), ``meta.json`` (``source = "imported"``, the inputs with
@@ -97,7 +98,7 @@ class _Calibration:
             raise UserError(f"{img.path}: the {what} is {'float' if img.is_float else 'integer'} data but the "
                             f"images are {'float' if self.is_float else 'integer'} data")
         if not img.is_float:
-            img = apply_bit_depth(img, self.bits, f"bit depth {self.bits} of the images")
+            img = apply_bit_depth(img, self.bits, "the bit depth of the images")
         if img.data.shape != self.shape:
             raise UserError(f"{img.path}: the {what} has shape {img.data.shape}, the images {self.shape}")
         return img
