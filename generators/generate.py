@@ -164,6 +164,7 @@ def cli_main(args) -> int:
     out = check_output_dir(args.out, markers=("meta.json",))
     use_variant()
     t = generate_dataset(spec, out, progress=sys.stderr.isatty())
+    raw = ", raw.tiff of a colour polarization sensor" if spec.rig.sensor == "dofp-rgb" else ""
     print(f"wrote {out} ({spec.rig.resolution}x{spec.rig.resolution}, "
-          f"{len(spec.rig.polarizer_angles_deg)} polarizer angles; {sum(t.values()):.1f} s)")
+          f"{len(spec.rig.polarizer_angles_deg)} polarizer angles{raw}; {sum(t.values()):.1f} s)")
     return 0
