@@ -341,7 +341,6 @@ def import_polarization(images, out, layout, angles=None, pattern=None, bit_dept
         **({"illuminant": illuminant} if illuminant else {}),
         **meta_film,
         **({"projection": {"pixel_size": float(pixel_size)}} if pixel_size is not None else {}),
-        resolution=[int(hw[1]), int(hw[0])],
         sensor=layout_info,
         saturated_pixels=n_sat,
         valid_pixels=int(valid.sum()),
