@@ -2,7 +2,9 @@
 
 Dataset format ``thinfilm-dataset/1`` (``DESIGN.md``): ``scene.toml``, ``meta.json``,
 ``ground_truth.exr``, ``polarized_rgb.exr``, ``spectral_s.exr``, ``stokes_spectral.exr``,
-``preview.png``. Every image is float32, all of one height and width, row 0 at the top.
+``preview.png``, and the optional ``valid.exr`` (channel ``valid``: 1 where the captures can be
+trusted, 0 where they cannot, e.g. saturated pixels of an imported capture; absent means every
+pixel). Every image is float32, all of one height and width, row 0 at the top.
 Estimate folders: ``estimate.exr``, ``estimate.json`` and an optional ``surface.ply``.
 
 Readers stop with a :class:`~thinfilm.core.errors.UserError` that names the file and the
@@ -160,6 +162,9 @@ class Dataset:
         (H, W, B) s-polarized reflectance per band.
     stokes : dict
         ``"S0"``, ``"S1"``, ``"S2"`` → (H, W, B); empty if absent.
+    valid : ndarray or None
+        (H, W) bool, the pixels whose captures can be trusted (``valid.exr``); None when the
+        folder has no ``valid.exr`` (every pixel). Methods reconstruct only valid pixels.
     """
 
     path: Path
@@ -168,6 +173,7 @@ class Dataset:
     polarized_rgb: dict = field(default_factory=dict)
     spectral_s: np.ndarray | None = None
     stokes: dict = field(default_factory=dict)
+    valid: np.ndarray | None = None
 
     @property
     def wavelengths_nm(self) -> np.ndarray:
@@ -207,7 +213,7 @@ class Dataset:
 
     @property
     def shape(self) -> tuple:
-        for img in (self.spectral_s, *self.polarized_rgb.values(), self.ground_truth.get("mask")):
+        for img in (self.spectral_s, *self.polarized_rgb.values(), self.ground_truth.get("mask"), self.valid):
             if img is not None:
                 return tuple(img.shape[:2])
         raise UserError(f"{self.path}: dataset holds no image")
@@ -226,6 +232,8 @@ def read_dataset(path, need=("polarized_rgb",), optional=None) -> Dataset:
     optional : iterable of str or None
         Parts read (and validated) only when present. ``None``: every part not in ``need``.
         Parts in neither are not read at all.
+
+    The optional ``valid.exr`` is read whenever it is present (:attr:`Dataset.valid`).
 
     Raises
     ------
@@ -307,6 +315,17 @@ def read_dataset(path, need=("polarized_rgb",), optional=None) -> Dataset:
             cube = np.stack(list(_require(ch, names, p, shape).values()), axis=-1)
             _no_nan(cube, p, names)
             ds.stokes[s] = cube
+
+    p = root / "valid.exr"
+    if p.is_file():
+        ch = read_exr(p)
+        if "valid" not in ch:
+            raise UserError(f"{p}: missing channel 'valid'")
+        arr = ch["valid"]
+        if shape is not None and arr.shape != shape:
+            raise UserError(f"{p}: channel 'valid' has shape {arr.shape}, expected {shape}")
+        _no_nan(arr[..., None], p, ["valid"])
+        ds.valid = arr > 0.5
     return ds
 
 
@@ -384,7 +403,7 @@ def dataset_meta(**fields) -> dict:
 
 def write_dataset(folder, meta: dict, ground_truth: dict | None = None, polarized_rgb: dict | None = None,
                   spectral_s=None, stokes: dict | None = None, scene_toml: str | None = None,
-                  preview: bool = True) -> Path:
+                  preview: bool = True, valid=None) -> Path:
     """Write the files of a ``thinfilm-dataset/1`` folder into ``folder`` (which exists).
 
     Parameters
@@ -403,6 +422,8 @@ def write_dataset(folder, meta: dict, ground_truth: dict | None = None, polarize
     preview : bool
         Write ``preview.png`` (needs ``polarized_rgb``; the normal map beside it when there is
         ground truth).
+    valid : (H, W) bool, optional
+        Pixels whose captures can be trusted (``valid.exr``); None: every pixel, no file.
     """
     folder = Path(folder)
     if meta.get("format") != FORMAT:
@@ -424,6 +445,8 @@ def write_dataset(folder, meta: dict, ground_truth: dict | None = None, polarize
     if stokes:
         write_exr(folder / "stokes_spectral.exr", {
             k: v for s in ("S0", "S1", "S2") for k, v in band_channels(np.asarray(stokes[s]), f"{s}.").items()})
+    if valid is not None:
+        write_exr(folder / "valid.exr", {"valid": np.asarray(valid).astype(np.float32)})
     if preview and polarized_rgb:
         _write_preview(folder / "preview.png", polarized_rgb, ground_truth)
     return folder

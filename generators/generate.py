@@ -3,7 +3,9 @@
 Pipeline: :class:`~.spec.SceneSpec` → Mitsuba scene (:mod:`.scene`) → ground truth by ray
 casting the pixel-centre rays (:mod:`.ground_truth`) → band-integrated Stokes cube
 (:func:`.render.render_stokes_cube`) → captures (:mod:`.captures`) → camera noise
-(:mod:`.noise`) → files (:func:`thinfilm.core.io.write_dataset`), written atomically.
+(:mod:`.noise`) → with ``rig.sensor = "dofp-rgb"`` the raw image of a colour polarization
+sensor (:mod:`.sensor`) → files (:func:`thinfilm.core.io.write_dataset`, ``raw.tiff``),
+written atomically.
 
 The result is a pure function of the spec (seed included): same spec, same bytes.
 """
@@ -28,7 +30,9 @@ def simulate(spec, progress: bool = False) -> dict:
     dict
         ``ground_truth`` (see :func:`.ground_truth.cast_ground_truth`), ``frame``,
         ``wavelengths_nm``, ``stokes_exact`` (S0/S1/S2 (H, W, B)), ``stokes`` and
-        ``spectral_s`` (measured), ``polarized_rgb`` {angle: (H, W, 3)}, ``timings_s``.
+        ``spectral_s`` (measured), ``polarized_rgb`` {angle: (H, W, 3)}, ``timings_s``; with
+        ``rig.sensor = "dofp-rgb"`` also ``raw`` ((H, W) uint16) and ``sensor`` (its
+        ``meta.json`` entry, :func:`.sensor.dofp_raw`).
     """
     import mitsuba as mi
 
@@ -53,9 +57,11 @@ def simulate(spec, progress: bool = False) -> dict:
 
     mask = gt["mask"]
     angles = [int(a) for a in rig.polarizer_angles_deg]
-    # One generator per image stack (RGB, then each angle of the hyperspectral camera),
-    # spawned in a fixed order: reproducible whatever order the stacks are processed in.
-    rngs = [np.random.default_rng(s) for s in np.random.SeedSequence(spec.seed).spawn(1 + len(angles))]
+    # One generator per image stack (RGB, then each angle of the hyperspectral camera, then
+    # the raw sensor), spawned in a fixed order: reproducible whatever order the stacks are
+    # processed in. Child i of a SeedSequence depends on i only, so the raw sensor's stream
+    # leaves the others as they were.
+    rngs = [np.random.default_rng(s) for s in np.random.SeedSequence(spec.seed).spawn(2 + len(angles))]
     rgb_exact, spectral_exact = captures_from_stokes(stokes, wl, angles, rig.camera, rig.illuminant)
     rgb_stack = np.stack([rgb_exact[int(a) % 360] for a in angles])
     rgb_noisy = apply_camera_noise(rgb_stack, mask, noise, rngs[0])
@@ -63,12 +69,17 @@ def simulate(spec, progress: bool = False) -> dict:
     if noise["model"] == "none":
         measured, spectral_s = stokes, spectral_exact
     else:
-        measured = hyperspectral_capture(stokes, angles, mask, noise, rngs[1:])
+        measured = hyperspectral_capture(stokes, angles, mask, noise, rngs[1:1 + len(angles)])
         spectral_s = s_polarized(measured["S0"], measured["S1"], measured["S2"])
+    out = {"ground_truth": gt, "frame": frame, "wavelengths_nm": wl, "stokes_exact": stokes,
+           "stokes": measured, "spectral_s": spectral_s, "polarized_rgb": polarized_rgb}
+    if rig.sensor == "dofp-rgb":
+        from .sensor import dofp_raw
+
+        out["raw"], out["sensor"] = dofp_raw(stokes, wl, rig.camera, rig.illuminant, mask, noise, rngs[-1])
     t3 = time.perf_counter()
-    return {"ground_truth": gt, "frame": frame, "wavelengths_nm": wl, "stokes_exact": stokes,
-            "stokes": measured, "spectral_s": spectral_s, "polarized_rgb": polarized_rgb,
-            "timings_s": {"scene": t1 - t0, "render": t2 - t1, "captures": t3 - t2}}
+    out["timings_s"] = {"scene": t1 - t0, "render": t2 - t1, "captures": t3 - t2}
+    return out
 
 
 def dataset_meta_of(spec, sim: dict) -> dict:
@@ -97,16 +108,25 @@ def dataset_meta_of(spec, sim: dict) -> dict:
         noise=spec.noise.as_dict(),
         stokes_spectral="measured like spectral_s (noisy unless noise model is 'none')",
         source="generated",
+        **({"sensor": sim["sensor"]} if "sensor" in sim else {}),
     )
 
 
 def write_simulation(sim: dict, spec, folder) -> None:
     """Write every file of format ``thinfilm-dataset/1`` into ``folder`` (which exists)."""
+    from pathlib import Path
+
     from thinfilm.core.io import write_dataset
 
     write_dataset(folder, dataset_meta_of(spec, sim), ground_truth=sim["ground_truth"],
                   polarized_rgb=sim["polarized_rgb"], spectral_s=sim["spectral_s"], stokes=sim["stokes"],
                   scene_toml=spec.to_toml())
+    if "raw" in sim:
+        from .sensor import write_raw_tiff
+
+        info = sim["sensor"]
+        write_raw_tiff(Path(folder) / info["file"], sim["raw"],
+                       f"thinfilm dofp-rgb raw; pattern {info['pattern']}; {info['bits']}-bit values")
 
 
 def generate_dataset(spec, out_dir, progress: bool = True) -> dict:
@@ -144,6 +164,7 @@ def cli_main(args) -> int:
     out = check_output_dir(args.out, markers=("meta.json",))
     use_variant()
     t = generate_dataset(spec, out, progress=sys.stderr.isatty())
+    raw = ", raw.tiff of a colour polarization sensor" if spec.rig.sensor == "dofp-rgb" else ""
     print(f"wrote {out} ({spec.rig.resolution}x{spec.rig.resolution}, "
-          f"{len(spec.rig.polarizer_angles_deg)} polarizer angles; {sum(t.values()):.1f} s)")
+          f"{len(spec.rig.polarizer_angles_deg)} polarizer angles{raw}; {sum(t.values()):.1f} s)")
     return 0

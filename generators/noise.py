@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["AUTO_EXPOSURE_FRACTION", "exposure_gains", "apply_camera_noise"]
+__all__ = ["AUTO_EXPOSURE_FRACTION", "exposure_gains", "digitize", "apply_camera_noise"]
 
 AUTO_EXPOSURE_FRACTION = 0.9
 
@@ -50,6 +50,41 @@ def exposure_gains(images: np.ndarray, mask: np.ndarray, noise: dict) -> np.ndar
     return np.where(brightest > 0, target / np.where(brightest > 0, brightest, 1.0), target)
 
 
+def digitize(images: np.ndarray, mask: np.ndarray, noise: dict, rng: np.random.Generator):
+    """The camera's digital numbers of an image stack (model ``camera``): exposure, shot and
+    read noise, quantization and clipping (see the module docstring).
+
+    Parameters
+    ----------
+    images : array (N, H, W[, C]), reflectance units (or any signal proportional to the
+        electrons collected), >= 0
+    mask : array (H, W) bool
+    noise : dict
+        Resolved ``[noise]`` table.
+    rng : numpy.random.Generator
+
+    Returns
+    -------
+    dn : ndarray, same shape, float64 whole numbers in [0, 2^bits - 1]
+    gains : ndarray (N,), electrons per unit of ``images``
+    """
+    images = np.asarray(images, dtype=np.float64)
+    gains = exposure_gains(images, mask, noise)
+    g = gains.reshape((-1,) + (1,) * (images.ndim - 1))
+    full_well = float(noise["full_well"])
+    levels = float(2 ** int(noise["bits"]) - 1)
+    expected = np.clip(images, 0.0, None)
+    expected *= g
+    out = rng.poisson(expected).astype(np.float64)
+    del expected
+    if noise["read_noise"] > 0:
+        out += rng.normal(0.0, float(noise["read_noise"]), size=images.shape)
+    out *= levels / full_well
+    np.rint(out, out=out)
+    np.clip(out, 0.0, levels, out=out)
+    return out, gains
+
+
 def apply_camera_noise(images: np.ndarray, mask: np.ndarray, noise: dict,
                        rng: np.random.Generator) -> np.ndarray:
     """Noisy copy of an image stack (see the module docstring).
@@ -69,18 +104,9 @@ def apply_camera_noise(images: np.ndarray, mask: np.ndarray, noise: dict,
     images = np.asarray(images, dtype=np.float64)
     if noise["model"] == "none":
         return images.copy()
-    gains = exposure_gains(images, mask, noise).reshape((-1,) + (1,) * (images.ndim - 1))
+    out, gains = digitize(images, mask, noise, rng)
     full_well = float(noise["full_well"])
     levels = float(2 ** int(noise["bits"]) - 1)
-    expected = np.clip(images, 0.0, None)
-    expected *= gains
-    out = rng.poisson(expected).astype(np.float64)
-    del expected
-    if noise["read_noise"] > 0:
-        out += rng.normal(0.0, float(noise["read_noise"]), size=images.shape)
-    out *= levels / full_well
-    np.rint(out, out=out)
-    np.clip(out, 0.0, levels, out=out)
     out *= full_well / levels
-    out /= gains
+    out /= gains.reshape((-1,) + (1,) * (images.ndim - 1))
     return out

@@ -16,7 +16,9 @@ Keys beyond ``DESIGN.md``
 ``film.thickness.radius`` (radial: distance in scene units at which ``edge`` is reached;
 0 means the object's silhouette radius), ``rig.passband`` (``"gaussian"`` or ``"box"``),
 ``rig.fill`` (fraction of the square image the object's larger extent fills),
-``rig.max_depth`` (path length limit, for inter-reflections of concave meshes).
+``rig.max_depth`` (path length limit, for inter-reflections of concave meshes),
+``rig.sensor`` (``"ideal"``: per-angle captures only; ``"dofp-rgb"``: also the raw image of a
+colour polarization sensor, ``raw.tiff``, see :mod:`thinfilm.generators.sensor`).
 
 Examples
 --------
@@ -79,6 +81,7 @@ class Rig:
     dome_hole_deg: float
     fill: float
     max_depth: int
+    sensor: str = "ideal"
 
     @property
     def wavelengths(self):

@@ -58,6 +58,7 @@ _RIG_KEYS = {
     "dome_hole_deg": ("hole", 0.0),
     "fill": ("fill", 0.9),
     "max_depth": ("depth", 6),
+    "sensor": ("sensor", "ideal"),
 }
 _NOISE_KEYS = {
     "model": ("noise_model", "camera"),
@@ -137,6 +138,10 @@ class Checker:
         if kind == "passband":
             if value not in ("gaussian", "box"):
                 self.fail(where, "\"gaussian\" or \"box\"", value)
+            return value
+        if kind == "sensor":
+            if value not in ("ideal", "dofp-rgb"):
+                self.fail(where, "\"ideal\" or \"dofp-rgb\"", value)
             return value
         if kind == "noise_model":
             if value not in ("none", "camera"):
@@ -306,6 +311,9 @@ def resolve(raw: dict, c: "Checker") -> dict:
     out["rig"] = c.table("rig", raw.get("rig", {}), _RIG_KEYS, {})
     out["noise"] = c.table("noise", raw.get("noise", {}), _NOISE_KEYS, {})
     _check_rig_colour(out["rig"], c)
+    if out["rig"]["sensor"] == "dofp-rgb" and out["noise"]["bits"] > 16:
+        raise UserError(f"{c.source}: 'noise.bits' must be at most 16 with rig.sensor = \"dofp-rgb\" "
+                        f"(raw.tiff is a 16-bit file), got {out['noise']['bits']}")
     return out
 
 

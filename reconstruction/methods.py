@@ -62,7 +62,14 @@ def _spectral(dataset, options, function):
         raise UserError(f"{meta_path}: substrate index must be above 1 for the spectral methods, got {n3:g} "
                         f"(give it with --substrate-ior)")
     pixel_size = dataset.pixel_size
-    est = reconstruct_spectral(dataset.spectral_s, dataset.wavelengths_nm, n3, mask=options.mask,
+    mask = options.mask
+    if dataset.valid is not None:  # valid.exr: e.g. saturated pixels of an imported capture
+        import numpy as np
+
+        from .spectral_checks import object_mask
+
+        mask = (object_mask(dataset.spectral_s) if mask is None else np.asarray(mask, dtype=bool)) & dataset.valid
+    est = reconstruct_spectral(dataset.spectral_s, dataset.wavelengths_nm, n3, mask=mask,
                                method=function, pixel_size=pixel_size or 1.0)
     est.info["coverage"] = float(est.valid.sum() / max(1, est.info["object_pixels"]))
     est.info["height_unit"] = "pixel" if pixel_size is None else "scene"

@@ -95,6 +95,8 @@ def capture_from_dataset(dataset, options) -> RGBCapture:
     else:
         S0 = fit_stokes(np.stack([images[a] for a in sorted(images)]), sorted(images))[0]
         mask = mask_from_intensity(np.clip(S0.mean(axis=-1), 0.0, None))
+    if dataset.valid is not None:  # valid.exr: e.g. saturated pixels of an imported capture
+        mask = mask & dataset.valid
     if not mask.any():
         raise UserError(f"{'--mask' if options.mask is not None else exr_path}: the object mask is empty")
     info = {"film_ior": index_to_json(film.layers[0].material),

@@ -98,6 +98,8 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--out", required=True)
     ev.set_defaults(target="thinfilm.evaluation:cli_main")
 
+    _add_import_parsers(sub)
+
     b = sub.add_parser("benchmark", help="every preset x every method, with a report")
     b.add_argument("--quick", action="store_true", help="small images, under 10 minutes on 2 cores")
     b.add_argument("--out", required=True)
@@ -124,6 +126,67 @@ def build_parser() -> argparse.ArgumentParser:
     fs.add_argument("--json", action="store_true", help="one JSON object per line, one per spectrum")
     fs.set_defaults(target="thinfilm.fit_spectrum:cli_main")
     return p
+
+
+def _add_import_parsers(sub) -> None:
+    """``thinfilm import polarization|spectral`` (:mod:`thinfilm.importers`)."""
+    imp = sub.add_parser("import", help="make a dataset folder from real captures (polarization camera, "
+                                        "hyperspectral cubes)")
+    isub = imp.add_subparsers(dest="kind", metavar="KIND")
+    isub.required = True
+
+    def common(q):
+        q.add_argument("--out", required=True, help="the dataset folder to write")
+        q.add_argument("--film-ior", default=None, metavar="N|MATERIAL", help="known film index, recorded in meta.json")
+        q.add_argument("--substrate-ior", default=None, metavar="N", help="known substrate index, recorded in meta.json")
+        q.add_argument("--pixel-size", type=float, default=None, metavar="S",
+                       help="scene units per pixel (scales surface.ply), recorded in meta.json")
+        q.add_argument("--saturation", default=None, metavar="LEVEL",
+                       help="raw value at or above which a sample is saturated (default: the largest code, "
+                            "less 0.2%% for images; the data type's largest value for integer cubes)")
+        q.add_argument("--white-reflectance", default="1", metavar="R|CSV",
+                       help="reflectance of the white reference target: a number or a CSV spectrum (default 1)")
+
+    pol = isub.add_parser("polarization", help="polarizer images or a colour polarization-sensor mosaic")
+    pol.add_argument("images", nargs="+", metavar="IMAGE", help="PNG or TIFF files (8, 12 or 16 bits)")
+    pol.add_argument("--layout", required=True, choices=("separate", "dofp-rgb"),
+                     help="separate: one RGB image per polarizer angle; dofp-rgb: raw mosaic(s) of a colour "
+                          "division-of-focal-plane sensor")
+    pol.add_argument("--angles", default=None, metavar="A,B,C,...",
+                     help="separate: the polarizer angle of each image, in degrees (3 or more)")
+    pol.add_argument("--pattern", default=None,
+                     help="dofp-rgb: the sensor's filter pattern (default RGGB:90,45,135,0, Sony IMX250MYR)")
+    pol.add_argument("--bit-depth", type=_positive_int, default=None, metavar="N",
+                     help="bits of the camera's values (default: the file's; e.g. 12 for 12-bit values in 16-bit files)")
+    pol.add_argument("--dark", default=None, metavar="FILE|LEVEL", help="dark frame (same shape) or dark level")
+    pol.add_argument("--flat", default=None, metavar="FILE", help="flat field of a uniform unpolarized field (same shape)")
+    pol.add_argument("--white-balance", default=None, metavar="R,G,B",
+                     help="gains from normalized raw values to reflectance units")
+    pol.add_argument("--white-reference", default=None, metavar="IMAGE",
+                     help="image of a diffuse white target through the polarizers (same layout and shape)")
+    pol.add_argument("--camera", default=None, metavar="NAME|CSV", help="camera sensitivities for the forward models")
+    pol.add_argument("--illuminant", default=None, metavar="NAME|CSV", help="illuminant for the forward models")
+    pol.add_argument("--wavelengths", default=None, metavar="START:STOP:STEP|LIST|FILE",
+                     help="bands of the camera model (default 400:720:4)")
+    pol.add_argument("--keep-edges", action="store_true",
+                     help="dofp-rgb: keep pixels whose interpolation crosses the object's silhouette valid")
+    common(pol)
+    pol.set_defaults(target="thinfilm.importers.polarization:cli_main")
+
+    spe = isub.add_parser("spectral", help="hyperspectral cubes (ENVI or multi-page TIFF)")
+    spe.add_argument("cubes", nargs="+", metavar="CUBE", help="ENVI (.hdr and data) or TIFF cube(s)")
+    spe.add_argument("--wavelengths", default=None, metavar="START:STOP:STEP|LIST|FILE",
+                     help="band centres in nm (required for TIFF cubes; overrides an ENVI header)")
+    spe.add_argument("--white", default=None, metavar="CUBE|CSV", help="white reference cube or spectrum")
+    spe.add_argument("--dark", default=None, metavar="CUBE|CSV|LEVEL", help="dark reference cube, spectrum or level")
+    spe.add_argument("--polarizer", default="s", choices=("s", "stokes"),
+                     help="s: one s-polarized cube (default); stokes: cubes behind polarizers at --angles")
+    spe.add_argument("--angles", default=None, metavar="A,B,C,...",
+                     help="stokes: the polarizer angle of each cube (default 0,45,90,135 for 4 cubes)")
+    spe.add_argument("--band-fwhm", type=float, default=None, metavar="NM",
+                     help="band width (FWHM, nm), recorded for re-rendering (default: the ENVI header's)")
+    common(spe)
+    spe.set_defaults(target="thinfilm.importers.spectral:cli_main")
 
 
 def _one_line_warning(message, category, filename, lineno, line=None):
