@@ -5,8 +5,8 @@
 * TIFF through ``tifffile``: unsigned 8- or 16-bit samples (``BitsPerSample`` gives the depth,
   12 for packed 12-bit files), or 32/64-bit floats, which are taken as values already
   normalized to [0, 1] (no bit depth, no saturation level).
-* PNG through Pillow, except 16-bit colour PNGs, which Pillow reduces to 8 bits: those are
-  decoded here (:func:`_decode_png`, zlib and the five PNG row filters). A PNG ``sBIT`` chunk
+* PNG through ``imagecodecs`` (libpng), which keeps 16-bit colour samples (Pillow reduces
+  them to 8 bits); the chunk headers are read here for the bit depth. A PNG ``sBIT`` chunk
   that declares fewer significant bits (a 12-bit camera image scaled up to 16 bits, as the PNG
   standard asks) brings the samples back to that depth.
 
@@ -18,7 +18,6 @@ the file (:class:`~thinfilm.core.errors.UserError`).
 from __future__ import annotations
 
 import struct
-import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -147,20 +146,14 @@ def _read_png(p: Path, what: str) -> CameraImage:
         raise UserError(f"{p}: the {what} is a palette PNG; expected gray or RGB camera values")
     if depth not in (8, 16):
         raise UserError(f"{p}: the {what} has {depth}-bit samples; expected 8 or 16 bits")
-    if depth == 16 and ctype in (2, 4, 6):
-        if interlace:
-            raise UserError(f"{p}: interlaced 16-bit colour PNGs are not supported; save it without interlacing")
-        data = _decode_png(chunks, width, height, ctype, p)
-    else:
-        from PIL import Image
+    # imagecodecs (libpng) keeps 16-bit colour samples, which Pillow reduces to 8 bits
+    import imagecodecs
 
-        try:
-            with Image.open(p) as im:
-                im.load()
-                data = np.asarray(im)
-        except Exception as e:
-            raise UserError(f"{p}: cannot read the PNG {what} ({_one_line(e)})") from None
-        data = data.astype(np.uint16 if depth == 16 else np.uint8, copy=False)
+    try:
+        data = imagecodecs.png_decode(raw)
+    except Exception as e:
+        raise UserError(f"{p}: cannot read the PNG {what} ({_one_line(e)})") from None
+    data = np.asarray(data).astype(np.uint16 if depth == 16 else np.uint8, copy=False)
     if ctype in (4, 6):  # drop alpha
         data = data[..., :-1]
     bits = depth
@@ -171,44 +164,6 @@ def _read_png(p: Path, what: str) -> CameraImage:
             data = data >> (depth - significant)
             bits = int(significant)
     return _squeeze(CameraImage(np.ascontiguousarray(data), bits, depth, p), what)
-
-
-def _decode_png(chunks, width, height, ctype, p: Path) -> np.ndarray:
-    """16-bit colour PNG samples (H, W, C) uint16: inflate the IDAT stream and undo the row
-    filters (PNG spec, section 9) on all rows at once, one anti-diagonal of pixels per step
-    (a pixel's prediction needs its left, upper and upper-left neighbours)."""
-    channels = {2: 3, 4: 2, 6: 4}[ctype]
-    bpp = 2 * channels
-    try:
-        stream = zlib.decompress(b"".join(d for t, d in chunks if t == b"IDAT"))
-    except zlib.error as e:
-        raise UserError(f"{p}: damaged PNG data ({e})") from None
-    row_bytes = width * bpp
-    if len(stream) < height * (row_bytes + 1):
-        raise UserError(f"{p}: truncated PNG data")
-    rows = np.frombuffer(stream, dtype=np.uint8, count=height * (row_bytes + 1)).reshape(height, row_bytes + 1)
-    filters = rows[:, 0].astype(np.int64)
-    if np.any(filters > 4):
-        raise UserError(f"{p}: damaged PNG data (unknown row filter)")
-    coded = rows[:, 1:].reshape(height, width, bpp).astype(np.int64)
-    out = np.zeros((height + 1, width + 1, bpp), dtype=np.int64)  # row 0 / column 0: zeros
-    if np.all(filters == 0):
-        out[1:, 1:] = coded
-    else:
-        r_all = np.arange(height)
-        for d in range(height + width - 1):
-            r = r_all[max(0, d - width + 1):min(height - 1, d) + 1]
-            x = d - r
-            a = out[r + 1, x]          # left
-            b = out[r, x + 1]          # up
-            c = out[r, x]              # up-left
-            f = filters[r][:, None]
-            pa, pb, pc = np.abs(b - c), np.abs(a - c), np.abs(a + b - 2 * c)
-            paeth = np.where((pa <= pb) & (pa <= pc), a, np.where(pb <= pc, b, c))
-            pred = np.select([f == 1, f == 2, f == 3, f == 4], [a, b, (a + b) // 2, paeth], 0)
-            out[r + 1, x + 1] = (coded[r, x] + pred) & 0xFF
-    byte = out[1:, 1:].astype(np.uint16)
-    return (byte[..., 0::2] << 8) | byte[..., 1::2]
 
 
 def _squeeze(img: CameraImage, what: str) -> CameraImage:

@@ -254,7 +254,7 @@ def import_spectral(cubes, out, wavelengths=None, white=None, dark=None, white_r
         else:
             low = np.any(span <= 0, axis=-1)
             if low.all():
-                raise UserError(f"--white: the white reference is not above the dark level anywhere")
+                raise UserError("--white: the white reference is not above the dark level anywhere")
             bad |= low
             span = np.where(span > 0, span, 1.0)
         rho = reference_reflectance(white_reflectance, "--white-reflectance", wl)
