@@ -16,7 +16,12 @@ Keys beyond ``DESIGN.md``
 ``film.thickness.radius`` (radial: distance in scene units at which ``edge`` is reached;
 0 means the object's silhouette radius), ``rig.passband`` (``"gaussian"`` or ``"box"``),
 ``rig.fill`` (fraction of the square image the object's larger extent fills),
-``rig.max_depth`` (path length limit, for inter-reflections of concave meshes).
+``rig.max_depth`` (path length limit, for inter-reflections of concave meshes),
+``film.roughness`` (microfacet roughness of the film, the GGX alpha of the ``thinfilm``
+plugin, 0 to 1; 0, the default, is a smooth film and is not written to ``scene.toml``),
+``rig.spp`` (samples per pixel of a rough film: ``"auto"``, the default and not written, or
+a whole number; see :func:`thinfilm.generators.generate.rough_spp`; smooth films are
+rendered with one exact pixel-centre ray whatever it says).
 
 Examples
 --------
@@ -79,6 +84,7 @@ class Rig:
     dome_hole_deg: float
     fill: float
     max_depth: int
+    spp: object = "auto"
 
     @property
     def wavelengths(self):
@@ -116,6 +122,8 @@ class SceneSpec:
     rig : :class:`Rig`
     noise : :class:`Noise`
     source : where it came from (a file, a preset, with ``--set`` items), for messages
+    roughness : float, ``film.roughness``: the film's microfacet roughness (GGX alpha, 0 =
+        smooth); the ground truth stays the macro surface's
     """
 
     seed: int
@@ -125,6 +133,7 @@ class SceneSpec:
     rig: Rig
     noise: Noise
     source: str = "scene spec"
+    roughness: float = 0.0
 
     def __eq__(self, other):
         return isinstance(other, SceneSpec) and self.to_dict() == other.to_dict()
@@ -147,7 +156,8 @@ class SceneSpec:
         rig = dict(d["rig"])
         rig["polarizer_angles_deg"] = tuple(rig["polarizer_angles_deg"])
         return cls(seed=d["seed"], shape=Shape(d["shape"]["kind"], {k: v for k, v in d["shape"].items() if k != "kind"}),
-                   film=film, thickness=thickness, rig=Rig(**rig), noise=Noise(**d["noise"]), source=source)
+                   film=film, thickness=thickness, rig=Rig(**rig), noise=Noise(**d["noise"]), source=source,
+                   roughness=float(d["film"].get("roughness", 0.0)))
 
     def to_dict(self) -> dict:
         """The resolved spec dictionary (loads back to an equal spec)."""
@@ -156,6 +166,9 @@ class SceneSpec:
         sub = self.film.substrate
         rig = dict(self.rig.__dict__)
         rig["polarizer_angles_deg"] = list(rig["polarizer_angles_deg"])
+        if rig["spp"] == "auto":  # the default, not written (specs read as before it existed)
+            del rig["spp"]
+
         def ior(material):  # as the spec writes it: a number, "n+ki" or a material name
             value = index_to_json(material)
             return f"{value['n']!r}+{value['k']!r}i" if isinstance(value, dict) else value
@@ -165,6 +178,8 @@ class SceneSpec:
         else:
             film = {"layers": [{"ior": ior(layer.material), "thickness_nm": layer.thickness_nm}
                                for layer in self.film.layers]}
+        if self.roughness:  # a smooth film's spec reads as it did before roughness existed
+            film["roughness"] = self.roughness
         return {
             "seed": self.seed,
             "shape": {"kind": self.shape.kind, **copy.deepcopy(self.shape.params)},
