@@ -278,16 +278,27 @@ class Film:
 
     # -- Mitsuba --------------------------------------------------------------------------------
 
-    def plugin_dict(self, thickness=None, thickness_scale=None) -> dict:
+    def plugin_dict(self, thickness=None, thickness_scale=None, roughness: float = 0.0) -> dict:
         """The ``thinfilm`` BSDF dictionary of this film for ``mi.load_dict``.
 
         ``thickness``: a number of nm or a texture dictionary replacing a single film's
         thickness (default: the layer's own). A stack is written as the plugin's ``stack``
         text with its nominal thicknesses, and ``thickness_scale`` (a number or a texture
-        dictionary) multiplies them.
+        dictionary) multiplies them. ``roughness`` > 0 makes the film rough: the plugin's
+        ``alpha`` (GGX microfacets); 0 leaves the dictionary as a smooth film's.
+
+        Examples
+        --------
+        >>> Film.single(1.37, 400.0).plugin_dict(roughness=0.05)["alpha"]
+        0.05
+        >>> "alpha" in Film.single(1.37, 400.0).plugin_dict()
+        False
         """
         from thinfilm.bsdf.materials import Constant
 
+        roughness = float(roughness)
+        if not 0.0 <= roughness <= 1.0:
+            raise ValueError(f"roughness must be a GGX alpha from 0 to 1, got {roughness}")
         out = {"type": "thinfilm", "ext_ior": float(self.ext_ior)}
         if self.is_single:
             if thickness_scale is not None:
@@ -318,6 +329,8 @@ class Film:
             raise NotImplementedError("dispersive substrates in the plugin (give a number)")
         out["substrate_ior"] = float(sub.n)
         out["substrate_k"] = float(sub.k)
+        if roughness > 0:
+            out["alpha"] = roughness
         return out
 
 

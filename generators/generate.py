@@ -8,16 +8,66 @@ sensor (:mod:`.sensor`) → files (:func:`thinfilm.core.io.write_dataset`, ``raw
 written atomically.
 
 The result is a pure function of the spec (seed included): same spec, same bytes.
+
+Rough films
+-----------
+A film with ``film.roughness`` (alpha) > 0 is rendered with :func:`rough_spp` samples per
+pixel, all on the pixel-centre ray (only the BSDF samples vary; see
+:mod:`thinfilm.generators.render`), so the ground truth, cast along the same rays, is the
+macro surface's (normal, thickness and depth of the surface the microfacets sit on). The
+sampler seeds are drawn from the spec's seed, apart from the camera-noise streams: same
+spec, same bytes, rough or not. ``meta.json`` gains ``film_roughness`` and ``spp``; smooth
+datasets are unchanged (one exact ray per pixel, no new keys).
 """
 
 from __future__ import annotations
 
+import math
 import sys
 import time
 
 import numpy as np
 
-__all__ = ["simulate", "dataset_meta_of", "write_simulation", "generate_dataset", "cli_main"]
+__all__ = ["ROUGH_SPP", "simulate", "rough_spp", "dataset_meta_of", "write_simulation",
+           "generate_dataset", "cli_main"]
+
+#: samples per pixel of a rough film for the default camera (full well 10000 e-, 90 % of it
+#: at the brightest pixel): the sampling noise of a band image is then below the camera's
+#: (root mean square ratio of their standard deviations 0.23-0.48 on the hemisphere,
+#: 0.28-0.56 on the cylinder, 0.34-0.75 on the pyramid, whose flat faces are all at full
+#: exposure, for alpha 0.02-0.3; 256 samples: 0.11-0.32;
+#: ``benchmarks/bench_rough_generate.py``)
+ROUGH_SPP = 64
+
+
+def rough_spp(spec) -> int:
+    """Samples per pixel for a :class:`~.spec.SceneSpec`: 1 for a smooth film; ``rig.spp``
+    when it is a number; else (``"auto"``) :data:`ROUGH_SPP` for a camera whose full well is
+    at most the default 10000 e-, and for a deeper well, whose shot noise is relatively
+    smaller by sqrt(full_well / 10000), the power of 4 at or above
+    ``ROUGH_SPP * sqrt(full_well / 10000)`` (the sampler's stratified blocks make the
+    sampling noise fall about as 1/spp). Noise model ``none`` has no camera noise to stay
+    under; it gets the default camera's count.
+
+    Examples
+    --------
+    >>> from thinfilm.generators.spec import load_spec
+    >>> rough_spp(load_spec("hemisphere")), rough_spp(load_spec("hemisphere", ["film.roughness=0.1"]))
+    (1, 64)
+    >>> rough_spp(load_spec("hemisphere", ["film.roughness=0.1", "noise.full_well=40000"]))
+    256
+    >>> rough_spp(load_spec("hemisphere", ["film.roughness=0.1", "rig.spp=16"]))
+    16
+    """
+    if not spec.roughness:
+        return 1
+    if spec.rig.spp != "auto":
+        return int(spec.rig.spp)
+    noise = spec.noise
+    if noise.model == "none" or noise.full_well <= 10000.0:
+        return ROUGH_SPP
+    wanted = ROUGH_SPP * math.sqrt(noise.full_well / 10000.0)
+    return int(min(4 ** math.ceil(math.log(wanted, 4) - 1e-9), 4096))
 
 
 def simulate(spec, progress: bool = False) -> dict:
@@ -29,10 +79,11 @@ def simulate(spec, progress: bool = False) -> dict:
     -------
     dict
         ``ground_truth`` (see :func:`.ground_truth.cast_ground_truth`), ``frame``,
-        ``wavelengths_nm``, ``stokes_exact`` (S0/S1/S2 (H, W, B)), ``stokes`` and
-        ``spectral_s`` (measured), ``polarized_rgb`` {angle: (H, W, 3)}, ``timings_s``; with
-        ``rig.sensor = "dofp-rgb"`` also ``raw`` ((H, W) uint16) and ``sensor`` (its
-        ``meta.json`` entry, :func:`.sensor.dofp_raw`).
+        ``wavelengths_nm``, ``stokes_exact`` (S0/S1/S2 (H, W, B); noise free, but for a rough
+        film with the sampling noise of its ``spp`` samples), ``stokes`` and ``spectral_s``
+        (measured), ``polarized_rgb`` {angle: (H, W, 3)}, ``spp`` (samples per pixel
+        rendered), ``timings_s``; with ``rig.sensor = "dofp-rgb"`` also ``raw`` ((H, W) uint16)
+        and ``sensor`` (its ``meta.json`` entry, :func:`.sensor.dofp_raw`).
     """
     import mitsuba as mi
 
@@ -41,8 +92,8 @@ def simulate(spec, progress: bool = False) -> dict:
     from .captures import captures_from_stokes, hyperspectral_capture
     from .ground_truth import cast_ground_truth
     from .noise import apply_camera_noise
-    from .render import render_stokes_cube
-    from .scene import build_scene_dict
+    from .render import render_stokes_cube, sample_blocks
+    from .scene import build_scene_dict, rough_integrator
 
     t0 = time.perf_counter()
     scene_dict, frame, thickness = build_scene_dict(spec)
@@ -51,7 +102,14 @@ def simulate(spec, progress: bool = False) -> dict:
     rig, noise = spec.rig, spec.noise.as_dict()
     wl = rig.wavelengths
     t1 = time.perf_counter()
-    stokes = render_stokes_cube(scene, wl, rig.band_fwhm_nm, rig.passband, progress=progress)
+    spp = rough_spp(spec)
+    if spp == 1:
+        stokes = render_stokes_cube(scene, wl, rig.band_fwhm_nm, rig.passband, progress=progress)
+    else:
+        stokes = render_stokes_cube(scene, wl, rig.band_fwhm_nm, rig.passband, progress=progress,
+                                    spp=spp, seed=spec.seed, integrator=rough_integrator(spec))
+        block, passes = sample_blocks(spp)
+        spp = block * passes
     stokes.pop("mask")
     t2 = time.perf_counter()
 
@@ -72,7 +130,7 @@ def simulate(spec, progress: bool = False) -> dict:
         measured = hyperspectral_capture(stokes, angles, mask, noise, rngs[1:1 + len(angles)])
         spectral_s = s_polarized(measured["S0"], measured["S1"], measured["S2"])
     out = {"ground_truth": gt, "frame": frame, "wavelengths_nm": wl, "stokes_exact": stokes,
-           "stokes": measured, "spectral_s": spectral_s, "polarized_rgb": polarized_rgb}
+           "stokes": measured, "spectral_s": spectral_s, "polarized_rgb": polarized_rgb, "spp": spp}
     if rig.sensor == "dofp-rgb":
         from .sensor import dofp_raw
 
@@ -90,6 +148,8 @@ def dataset_meta_of(spec, sim: dict) -> dict:
 
     rig = spec.rig
     sub, _ = passband_quadrature(sim["wavelengths_nm"], rig.band_fwhm_nm, rig.passband)
+    # Only rough films get the keys of rough rendering: smooth datasets stay as they were.
+    rough = {"film_roughness": spec.roughness, "spp": int(sim["spp"])} if spec.roughness else {}
     return dataset_meta(
         wavelengths_nm=[float(v) for v in sim["wavelengths_nm"]],
         band_fwhm_nm=rig.band_fwhm_nm,
@@ -100,6 +160,7 @@ def dataset_meta_of(spec, sim: dict) -> dict:
         illuminant=rig.illuminant,
         dome_hole_deg=rig.dome_hole_deg,
         **spec.film.to_meta(),
+        **rough,
         shape=spec.shape.kind,
         thickness_profile=spec.thickness["profile"],
         resolution=rig.resolution,
@@ -165,6 +226,12 @@ def cli_main(args) -> int:
     use_variant()
     t = generate_dataset(spec, out, progress=sys.stderr.isatty())
     raw = ", raw.tiff of a colour polarization sensor" if spec.rig.sensor == "dofp-rgb" else ""
+    rough = ""
+    if spec.roughness:
+        from .render import sample_blocks
+
+        block, passes = sample_blocks(rough_spp(spec))
+        rough = f", rough film alpha {spec.roughness:g} at {block * passes} samples per pixel"
     print(f"wrote {out} ({spec.rig.resolution}x{spec.rig.resolution}, "
-          f"{len(spec.rig.polarizer_angles_deg)} polarizer angles{raw}; {sum(t.values()):.1f} s)")
+          f"{len(spec.rig.polarizer_angles_deg)} polarizer angles{raw}{rough}; {sum(t.values()):.1f} s)")
     return 0

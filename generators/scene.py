@@ -17,14 +17,19 @@ from .thickness import film_bsdf, thickness_map
 
 __all__ = [
     "ENVMAP_ROWS",
+    "CONVEX_SHAPES",
     "register_plugins",
     "dome_dict",
     "build_scene_dict",
     "build_scene",
+    "rough_integrator",
     "normal_map_scene",
 ]
 
 ENVMAP_ROWS = 2048  # latitude rows of the dome-with-hole environment map (0.088 deg each)
+#: shape kinds that are (the outside of) a convex body: no light reflected by them reaches
+#: them again, so one bounce to the dome is the whole light path
+CONVEX_SHAPES = frozenset({"hemisphere", "cylinder", "pyramid"})
 
 
 def register_plugins() -> None:
@@ -76,6 +81,10 @@ def _mi_mesh(name, vertices, faces, normals, bsdf_dict):
     return mesh
 
 
+def _path_integrator(max_depth: int) -> dict:
+    return {"type": "path", "max_depth": int(max_depth), "hide_emitters": True}
+
+
 def _scene_dict(shape_entry, frame: Frame, hole_deg: float, max_depth: int) -> dict:
     import mitsuba as mi
 
@@ -86,8 +95,7 @@ def _scene_dict(shape_entry, frame: Frame, hole_deg: float, max_depth: int) -> d
                 @ mi.ScalarTransform4f().scale([h, h, 1.0]))
     return {
         "type": "scene",
-        "integrator": {"type": "stokes",
-                       "nested": {"type": "path", "max_depth": int(max_depth), "hide_emitters": True}},
+        "integrator": {"type": "stokes", "nested": _path_integrator(max_depth)},
         "sensor": {
             "type": "orthographic",
             "to_world": to_world,
@@ -120,7 +128,7 @@ def build_scene_dict(spec):
     frame = frame_for(extent, zmin, zmax, rim, spec.rig.resolution, spec.rig.fill,
                       offset_px=(0.25, 0.125) if kind == "mesh" else (0.0, 0.0))
     thickness = thickness_map(spec.thickness, frame)
-    bsdf = film_bsdf(spec.film, thickness, frame)
+    bsdf = film_bsdf(spec.film, thickness, frame, roughness=spec.roughness)
     if kind == "sphere":
         shape_entry = {"type": "sphere", "center": [0.0, 0.0, 0.0], "radius": geo["radius"], "bsdf": bsdf}
     elif kind == "cylinder":
@@ -149,6 +157,23 @@ def build_scene(spec):
     gt = cast_ground_truth(mi.load_dict(scene_dict), thickness, frame)
     gt["frame"] = frame
     return scene_dict, gt
+
+
+def rough_integrator(spec) -> dict:
+    """The nested integrator that renders a rough film of a :class:`~.spec.SceneSpec` with
+    many samples per pixel (:func:`thinfilm.generators.render.render_stokes_cube`).
+
+    A shape of :data:`CONVEX_SHAPES` gets
+    :data:`thinfilm.generators.render.BSDF_SAMPLING_INTEGRATOR` (one BSDF sample traced to
+    the dome: all there is for it, in about half the path tracer's time); any other gets the
+    path tracer of the scene, ``rig.max_depth`` included, so that light reflected between its
+    parts is kept.
+    """
+    from .render import BSDF_SAMPLING_INTEGRATOR
+
+    if spec.shape.kind in CONVEX_SHAPES:
+        return dict(BSDF_SAMPLING_INTEGRATOR)
+    return _path_integrator(spec.rig.max_depth)
 
 
 def normal_map_scene(normals, thickness_nm, mask, film, dome_hole_deg: float = 0.0, max_depth: int = 3) -> dict:

@@ -19,6 +19,11 @@ Keys beyond ``DESIGN.md``
 ``rig.max_depth`` (path length limit, for inter-reflections of concave meshes),
 ``rig.sensor`` (``"ideal"``: per-angle captures only; ``"dofp-rgb"``: also the raw image of a
 colour polarization sensor, ``raw.tiff``, see :mod:`thinfilm.generators.sensor`).
+``film.roughness`` (microfacet roughness of the film, the GGX alpha of the ``thinfilm``
+plugin, 0 to 1; 0, the default, is a smooth film and is not written to ``scene.toml``),
+``rig.spp`` (samples per pixel of a rough film: ``"auto"``, the default and not written, or
+a whole number; see :func:`thinfilm.generators.generate.rough_spp`; smooth films are
+rendered with one exact pixel-centre ray whatever it says).
 
 Examples
 --------
@@ -82,6 +87,7 @@ class Rig:
     fill: float
     max_depth: int
     sensor: str = "ideal"
+    spp: object = "auto"
 
     @property
     def wavelengths(self):
@@ -119,6 +125,8 @@ class SceneSpec:
     rig : :class:`Rig`
     noise : :class:`Noise`
     source : where it came from (a file, a preset, with ``--set`` items), for messages
+    roughness : float, ``film.roughness``: the film's microfacet roughness (GGX alpha, 0 =
+        smooth); the ground truth stays the macro surface's
     """
 
     seed: int
@@ -128,6 +136,7 @@ class SceneSpec:
     rig: Rig
     noise: Noise
     source: str = "scene spec"
+    roughness: float = 0.0
 
     def __eq__(self, other):
         return isinstance(other, SceneSpec) and self.to_dict() == other.to_dict()
@@ -150,7 +159,8 @@ class SceneSpec:
         rig = dict(d["rig"])
         rig["polarizer_angles_deg"] = tuple(rig["polarizer_angles_deg"])
         return cls(seed=d["seed"], shape=Shape(d["shape"]["kind"], {k: v for k, v in d["shape"].items() if k != "kind"}),
-                   film=film, thickness=thickness, rig=Rig(**rig), noise=Noise(**d["noise"]), source=source)
+                   film=film, thickness=thickness, rig=Rig(**rig), noise=Noise(**d["noise"]), source=source,
+                   roughness=float(d["film"].get("roughness", 0.0)))
 
     def to_dict(self) -> dict:
         """The resolved spec dictionary (loads back to an equal spec)."""
@@ -159,6 +169,9 @@ class SceneSpec:
         sub = self.film.substrate
         rig = dict(self.rig.__dict__)
         rig["polarizer_angles_deg"] = list(rig["polarizer_angles_deg"])
+        if rig["spp"] == "auto":  # the default, not written (specs read as before it existed)
+            del rig["spp"]
+
         def ior(material):  # as the spec writes it: a number, "n+ki" or a material name
             value = index_to_json(material)
             return f"{value['n']!r}+{value['k']!r}i" if isinstance(value, dict) else value
@@ -168,6 +181,8 @@ class SceneSpec:
         else:
             film = {"layers": [{"ior": ior(layer.material), "thickness_nm": layer.thickness_nm}
                                for layer in self.film.layers]}
+        if self.roughness:  # a smooth film's spec reads as it did before roughness existed
+            film["roughness"] = self.roughness
         return {
             "seed": self.seed,
             "shape": {"kind": self.shape.kind, **copy.deepcopy(self.shape.params)},

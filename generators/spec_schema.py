@@ -40,11 +40,13 @@ _PROFILE_KEYS = {
     "bitmap": {"path": ("file", _REQUIRED)},
 }
 
-_FILM_KEYS = {"ior": ("ior", 1.37)}
+#: ``roughness``: the film's microfacet roughness, the GGX alpha of the ``thinfilm`` plugin
+#: (0 = smooth); a spec writes it only when > 0, so smooth specs read as before
+_FILM_KEYS = {"ior": ("ior", 1.37), "roughness": ("roughness", 0.0)}
 #: a stack instead of one film: ``layers = [{ ior = ..., thickness_nm = ... }, ...]`` from the
 #: exterior down (then ``film.thickness`` gives the top layer's thickness and the others scale
 #: with it)
-_STACK_KEYS = {"layers": ("layers", _REQUIRED)}
+_STACK_KEYS = {"layers": ("layers", _REQUIRED), "roughness": ("roughness", 0.0)}
 _LAYER_KEYS = {"ior": ("ior", _REQUIRED), "thickness_nm": ("positive", _REQUIRED)}
 _SUBSTRATE_KEYS = {"ior": ("positive", 1.6), "k": ("nonnegative", 0.0)}
 _RIG_KEYS = {
@@ -59,6 +61,8 @@ _RIG_KEYS = {
     "fill": ("fill", 0.9),
     "max_depth": ("depth", 6),
     "sensor": ("sensor", "ideal"),
+    # samples per pixel of a rough film ("auto": generate.rough_spp); not written when "auto"
+    "spp": ("spp", "auto"),
 }
 _NOISE_KEYS = {
     "model": ("noise_model", "camera"),
@@ -156,6 +160,19 @@ class Checker:
             if v <= 0:
                 self.fail(where, "\"auto\" or a number of electrons per unit reflectance > 0", value)
             return v
+        if kind == "spp":
+            if value == "auto":
+                return value
+            if isinstance(value, str):
+                self.fail(where, "\"auto\" or a whole number of samples per pixel from 1 to 4096", value)
+            v = self.integer(where, value)
+            if not 1 <= v <= 4096:
+                self.fail(where, "\"auto\" or a whole number of samples per pixel from 1 to 4096", value)
+            return v
+        if kind == "roughness":
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value <= 1:
+                self.fail(where, "a microfacet roughness (GGX alpha) from 0 (smooth) to 1", value)
+            return float(value)
         if kind == "hole":
             v = self.number(where, value)
             if not 0 <= v < 90:

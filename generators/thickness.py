@@ -108,12 +108,13 @@ def thickness_texture(thickness, frame: Frame):
     }
 
 
-def film_bsdf(film, thickness, frame: Frame) -> dict:
+def film_bsdf(film, thickness, frame: Frame, roughness: float = 0.0) -> dict:
     """The ``thinfilm`` BSDF dictionary of a :class:`thinfilm.core.film.Film` whose (top layer's)
     thickness is ``thickness`` (nm, a number or an (H, W) map over ``frame``). A stack gets
-    its nominal layers and the ``thickness_scale`` that gives its top layer that thickness."""
+    its nominal layers and the ``thickness_scale`` that gives its top layer that thickness.
+    ``roughness`` > 0: a rough film (the plugin's ``alpha``)."""
     if film.is_single:
-        return film.plugin_dict(thickness=thickness_texture(thickness, frame))
+        return film.plugin_dict(thickness=thickness_texture(thickness, frame), roughness=roughness)
     scale = film.thickness_scale(thickness)
     return film.plugin_dict(thickness_scale=thickness_texture(float(scale) if np.ndim(scale) == 0 else scale,
-                                                              frame))
+                                                              frame), roughness=roughness)
