@@ -176,7 +176,8 @@ def rough_integrator(spec) -> dict:
     return _path_integrator(spec.rig.max_depth)
 
 
-def normal_map_scene(normals, thickness_nm, mask, film, dome_hole_deg: float = 0.0, max_depth: int = 3) -> dict:
+def normal_map_scene(normals, thickness_nm, mask, film, dome_hole_deg: float = 0.0, max_depth: int = 3,
+                     roughness: float = 0.0) -> dict:
     """A scene that renders a per-pixel normal and thickness field through the same plugin
     and rig as the generator.
 
@@ -201,6 +202,8 @@ def normal_map_scene(normals, thickness_nm, mask, film, dome_hole_deg: float = 0
     film : :class:`thinfilm.core.film.Film`
     dome_hole_deg : float
         Angular radius of the camera's hole in the lighting dome.
+    roughness : float
+        Microfacet roughness of the film (the plugin's ``alpha``; 0 is smooth).
     max_depth : int
 
     Returns
@@ -223,7 +226,7 @@ def normal_map_scene(normals, thickness_nm, mask, film, dome_hole_deg: float = 0
         if thickness.shape != (height, width):
             raise ValueError(f"thickness_nm must be ({height}, {width}), got {thickness.shape}")
         thickness = np.where(np.isfinite(thickness), np.maximum(thickness, 0.0), 0.0).astype(np.float32)
-    bsdf = film_bsdf(film, thickness, frame)
+    bsdf = film_bsdf(film, thickness, frame, roughness=roughness)
     hole = float(dome_hole_deg)
     rows, cols = np.nonzero(mask)
     if rows.size == 0:

@@ -169,13 +169,14 @@ def metrics_from_maps(maps: dict, mask, film_ior_error) -> dict:
 # -- re-rendering -----------------------------------------------------------------------------
 
 def render_normal_map(normals, thickness_nm, valid, wavelengths_nm, film, dome_hole_deg=0.0, band_fwhm_nm=0.0,
-                      passband="gaussian", progress=False) -> dict:
+                      passband="gaussian", progress=False, roughness=0.0, spp=1) -> dict:
     """Band-integrated Stokes cube of a per-pixel normal and thickness field (any H × W),
     rendered through the ``thinfilm`` plugin under the generator's orthographic camera and
     dome: the generator's :func:`thinfilm.generators.scene.normal_map_scene` and
     :func:`thinfilm.generators.render.render_stokes_cube` (the code that rendered the
-    captures). ``film`` is a :class:`thinfilm.core.film.Film`. Needs a vectorized mono
-    polarized variant set by the caller.
+    captures). ``film`` is a :class:`thinfilm.core.film.Film`; a rough film (``roughness`` > 0)
+    is rendered with ``spp`` microfacet samples per pixel-centre ray, as the generator renders
+    it. Needs a vectorized mono polarized variant set by the caller.
 
     Returns
     -------
@@ -196,8 +197,16 @@ def render_normal_map(normals, thickness_nm, valid, wavelengths_nm, film, dome_h
     safe_normals = np.where(valid[..., None], np.nan_to_num(normals), [0.0, 0.0, 1.0])
     thickness = np.where(valid, np.asarray(thickness_nm, dtype=np.float64), 0.0)
     thickness = np.clip(np.nan_to_num(thickness), 0.0, None)
-    scene = normal_map_scene(safe_normals, thickness, valid, film, dome_hole_deg=float(dome_hole_deg))
-    out = render_stokes_cube(scene, wl, float(band_fwhm_nm), passband, progress=progress)
+    scene = normal_map_scene(safe_normals, thickness, valid, film, dome_hole_deg=float(dome_hole_deg),
+                             roughness=float(roughness))
+    if roughness > 0:
+        from thinfilm.generators.render import BSDF_SAMPLING_INTEGRATOR
+
+        # one BSDF sample to the dome per path: each pixel is a flat patch that sees only the dome
+        out = render_stokes_cube(scene, wl, float(band_fwhm_nm), passband, progress=progress, spp=int(spp),
+                                 seed=0, integrator=dict(BSDF_SAMPLING_INTEGRATOR))
+    else:
+        out = render_stokes_cube(scene, wl, float(band_fwhm_nm), passband, progress=progress)
     out.pop("mask", None)
     for s in ("S0", "S1", "S2"):
         out[s] = np.where(valid[..., None], out[s], 0.0)
@@ -206,7 +215,8 @@ def render_normal_map(normals, thickness_nm, valid, wavelengths_nm, film, dome_h
 
 def rerender_estimate(meta: dict, estimate, film, progress=False) -> dict:
     """Re-render an :class:`~thinfilm.core.io.Estimate` of a film with the dataset's rig
-    (``meta.json``: bands, passband, dome, polarizer angles, camera, illuminant; no noise):
+    (``meta.json``: bands, passband, dome, polarizer angles, camera, illuminant, the film's
+    roughness and samples per pixel; no noise):
     returns the Stokes cube and the noise-free captures ``spectral_s`` (H, W, B) and
     ``polarized_rgb`` {angle: (H, W, 3)} (:func:`thinfilm.generators.captures.captures_from_stokes`)."""
     from thinfilm.core.colorimetry import DEFAULT_CAMERA, DEFAULT_ILLUMINANT
@@ -217,7 +227,7 @@ def rerender_estimate(meta: dict, estimate, film, progress=False) -> dict:
         estimate.normals, estimate.thickness_nm, estimate.valid, wl, film,
         dome_hole_deg=float(meta.get("dome_hole_deg", 0.0) or 0.0),
         band_fwhm_nm=float(meta.get("band_fwhm_nm", 0.0) or 0.0), passband=meta.get("passband", "gaussian"),
-        progress=progress)
+        progress=progress, roughness=float(meta.get("film_roughness", 0.0) or 0.0), spp=int(meta.get("spp", 1) or 1))
     polarized_rgb, spectral_s = captures_from_stokes(
         stokes, wl, meta.get("polarizer_angles_deg", [0, 45, 90, 135]), meta.get("camera", DEFAULT_CAMERA),
         meta.get("illuminant", DEFAULT_ILLUMINANT))
