@@ -96,12 +96,14 @@ def cli_main(args) -> int:
     from thinfilm.core.outputs import atomic_output_dir, check_output_dir
 
     t0 = time.perf_counter()
-    out = check_output_dir(args.out)
-    est, method = reconstruct(args.kind, args.dataset, getattr(args, "method", None), getattr(args, "film_ior", None),
-                      getattr(args, "substrate_ior", None), getattr(args, "thickness_range", None),
-                      getattr(args, "mask", None), progress=sys.stderr.isatty())
-    t = time.perf_counter()
-    with atomic_output_dir(out) as tmp:
+    inputs = [args.dataset, getattr(args, "mask", None)]
+    out = check_output_dir(args.out, command="reconstruct", inputs=inputs)
+    with atomic_output_dir(out, command="reconstruct", inputs=inputs) as tmp:
+        est, method = reconstruct(args.kind, args.dataset, getattr(args, "method", None),
+                                  getattr(args, "film_ior", None), getattr(args, "substrate_ior", None),
+                                  getattr(args, "thickness_range", None), getattr(args, "mask", None),
+                                  progress=sys.stderr.isatty())
+        t = time.perf_counter()
         write_estimate(tmp, est)
         # estimate.json again, last, so that it holds the time of the writing too
         est.info["timings_s"]["write"] = time.perf_counter() - t
