@@ -158,6 +158,9 @@ def camera_weights(wavelengths_nm, camera: str = DEFAULT_CAMERA,
     w = camera_sensitivities(camera, wavelengths_nm) * (
         illuminant_spd(illuminant, wavelengths_nm) * band_widths(wavelengths_nm))[:, None]
     total = w.sum(axis=0)
+    if not np.all(np.isfinite(total)):
+        raise UserError(f"camera {camera!r} and illuminant {illuminant!r}: their product overflows over "
+                        f"{wavelengths_nm[0]:.0f}-{wavelengths_nm[-1]:.0f} nm (values too large)")
     if np.any(total <= 0):
         raise UserError(f"camera {camera!r} and illuminant {illuminant!r} give no signal over "
                         f"{wavelengths_nm[0]:.0f}-{wavelengths_nm[-1]:.0f} nm")

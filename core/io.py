@@ -131,7 +131,10 @@ def _c_output():
     except (OSError, ValueError, AttributeError):
         yield lambda: captured["text"]
         return
+    import io
+
     sink = tempfile.TemporaryFile()
+    py_sink = io.StringIO()  # what the bindings print through Python's sys.stdout
     try:
         os.dup2(sink.fileno(), 1)
         os.dup2(sink.fileno(), 2)
@@ -139,9 +142,10 @@ def _c_output():
         def text():
             _flush_c_stdio()
             sink.seek(0)
-            return " ".join(sink.read().decode("utf-8", "replace").split())
+            return " ".join((sink.read().decode("utf-8", "replace") + py_sink.getvalue()).split())
 
-        yield text
+        with contextlib.redirect_stdout(py_sink), contextlib.redirect_stderr(py_sink):
+            yield text
     finally:
         _flush_c_stdio()
         os.dup2(saved[0], 1)

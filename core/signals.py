@@ -22,9 +22,11 @@ from __future__ import annotations
 
 import signal
 
-__all__ = ["Terminated", "install", "received", "exit_code", "blocked"]
+__all__ = ["Terminated", "install", "received", "reset", "exit_code", "blocked", "deferred"]
 
 _received: int | None = None
+_pending: int | None = None  # arrived inside deferred(), not raised yet
+_defer_depth = 0
 
 
 class Terminated(BaseException):
@@ -36,12 +38,40 @@ class Terminated(BaseException):
         self.signum = signum
 
 
-def _handler(signum, frame):
-    global _received
-    _received = signum
+def _raise(signum):
     if signum == signal.SIGINT:
         raise KeyboardInterrupt
     raise Terminated(signum)
+
+
+def _handler(signum, frame):
+    global _received, _pending
+    _received = signum
+    if _defer_depth:
+        _pending = signum
+        return
+    _raise(signum)
+
+
+class deferred:
+    """Context manager: a signal that arrives inside the block is raised as its exception
+    when the block ends, not inside it. For native libraries that call back into Python
+    while they initialise (Dr.Jit and Mitsuba: an exception raised in such a callback
+    aborts the process with a C++ ``terminate``)."""
+
+    def __enter__(self):
+        global _defer_depth
+        _defer_depth += 1
+        return self
+
+    def __exit__(self, *exc):
+        global _defer_depth, _pending
+        _defer_depth -= 1
+        if _defer_depth == 0 and _pending is not None:
+            signum, _pending = _pending, None
+            if exc[0] is None:
+                _raise(signum)
+        return False
 
 
 def install() -> None:
@@ -56,8 +86,14 @@ def install() -> None:
 
 
 def received() -> int | None:
-    """The signal number that arrived since :func:`install`, or None."""
+    """The signal number that arrived since :func:`install` (or :func:`reset`), or None."""
     return _received
+
+
+def reset() -> None:
+    """Forget signals received so far (an entry point that runs several commands in one process)."""
+    global _received, _pending
+    _received = _pending = None
 
 
 def exit_code(signum: int) -> int:

@@ -23,6 +23,13 @@ def use_variant(name: str = RENDER_VARIANT, where: str = "--variant"):
         One line when the variant is unknown, or cannot start on this machine (a CUDA variant
         without a GPU, an LLVM variant without libLLVM).
     """
+    from . import signals
+
+    with signals.deferred():  # Ctrl-C while Dr.Jit and Mitsuba initialise: raised after it
+        return _use_variant(name, where)
+
+
+def _use_variant(name, where):
     import mitsuba as mi
 
     if name not in mi.variants():

@@ -12,6 +12,7 @@ as one ``thinfilm: warning: ...`` line each.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import sys
 
@@ -278,7 +279,7 @@ def main(argv=None) -> int:
             if signum is not None:
                 previous[signum] = signal.getsignal(signum)
         signals.install()
-    signals._received = None
+    signals.reset()
     try:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
@@ -346,6 +347,13 @@ def _run(argv) -> int:
             return _interrupted(signals.received())
         print(f"thinfilm: error: {_one_line(e)}", file=sys.stderr)
         return 2
+    except BrokenPipeError:
+        # the reader of our output went away (``thinfilm methods | head -1``): not an error
+        import os
+
+        with contextlib.suppress(OSError, ValueError):
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
     except MemoryError:
         print("thinfilm: error: out of memory; use a smaller --resolution or fewer bands", file=sys.stderr)
         return 2

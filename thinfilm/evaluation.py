@@ -470,8 +470,8 @@ def cli_main(args) -> int:
         v = m[key]["mean"]
         return "n/a" if v is None else f"{v:.3g}{unit}"
 
-    print(f"normal error {fmt('normal_error_deg', ' deg')}, thickness error {fmt('thickness_error_nm', ' nm')}, "
-          f"mean dE*ab {fmt('delta_e_ab')}, dE00 {fmt('delta_e_2000')}, spectral RMSE {fmt('spectral_rmse')}, "
-          f"film index error {m['film_ior_error'] if m['film_ior_error'] is None else round(m['film_ior_error'], 4)}"
-          f" -> {Path(args.out) / 'metrics.json'}")
+    print(f"wrote {Path(args.out) / 'metrics.json'} (normal error {fmt('normal_error_deg', ' deg')}, "
+          f"thickness error {fmt('thickness_error_nm', ' nm')}, mean dE*ab {fmt('delta_e_ab')}, "
+          f"dE00 {fmt('delta_e_2000')}, spectral RMSE {fmt('spectral_rmse')}, film index error "
+          f"{m['film_ior_error'] if m['film_ior_error'] is None else round(m['film_ior_error'], 4)})")
     return 0

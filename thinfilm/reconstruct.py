@@ -82,7 +82,16 @@ def reconstruct(kind: str, dataset_path, method=None, film_ior=None, substrate_i
     mask = read_mask_file(mask_path, ds.shape) if mask_path is not None else None
     t_read = time.perf_counter() - t0
     options = registry.Options(film=film, mask=mask, thickness_range_nm=thickness_range_nm, progress=progress)
-    est = registry.run(m, ds, options)
+    try:
+        est = registry.run(m, ds, options)
+    except (UserError, MemoryError):
+        raise
+    except Exception as e:
+        if str(getattr(m.function, "__module__", "")).startswith("thinfilm."):
+            raise  # a bug of ours: reported as one
+        # a method from elsewhere (an installed plugin, package.module:function) that failed
+        reason = " ".join(f"{type(e).__name__}: {e}".split())[:300]
+        raise UserError(f"--method {m.name}: the method failed ({reason})") from None
     est.info["timings_s"] = {"read": t_read, **est.info.get("timings_s", {})}
     est.info["timings_s"]["total"] = time.perf_counter() - t0
     return est, m
