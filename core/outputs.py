@@ -228,8 +228,9 @@ def _rmtree(path: Path) -> None:
             path.unlink()
 
 
-def _make_parents(folder: Path) -> list:
-    """Create ``folder`` and its missing parents; return the folders created, outermost first."""
+def _make_parents(folder: Path, created: list) -> None:
+    """Create ``folder`` and its missing parents, appending each one made to ``created``
+    (outermost first) as soon as it exists, so that an interrupt midway loses no record."""
     missing = []
     p = folder
     while not p.exists():
@@ -239,14 +240,13 @@ def _make_parents(folder: Path) -> list:
         if p.parent == p:
             break
         p = p.parent
-    created = []
     for d in reversed(missing):
-        try:
-            d.mkdir()
-        except FileExistsError:
-            continue
-        created.append(d)
-    return created
+        with signals.blocked():
+            try:
+                d.mkdir()
+            except FileExistsError:
+                continue
+            created.append(d)
 
 
 def _remove_created(created) -> None:
@@ -428,9 +428,23 @@ def output_lock(out, what: str = "--out"):
     """Hold the exclusive lock of output ``out`` (``.NAME.lock`` beside it; its parent must
     exist). A second holder gets a :class:`UserError` at once; the lock file is removed
     when released."""
+    out = Path(out)
+    fd = None
+    try:
+        with signals.blocked():  # no interrupt between taking the lock and owning it here
+            fd = _acquire(out, what)
+        yield out.parent / f".{out.name}.lock"
+    finally:
+        if fd is not None:
+            with signals.blocked():
+                with contextlib.suppress(OSError):
+                    os.unlink(out.parent / f".{out.name}.lock")
+                os.close(fd)
+
+
+def _acquire(out: Path, what: str) -> int:
     import fcntl
 
-    out = Path(out)
     lock = out.parent / f".{out.name}.lock"
     while True:
         try:
@@ -441,7 +455,7 @@ def output_lock(out, what: str = "--out"):
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError as e:
             owner = ""
-            with contextlib.suppress(OSError, ValueError):
+            with contextlib.suppress(OSError, ValueError, IndexError):
                 owner = os.pread(fd, 64, 0).decode("ascii", "replace").split()[0]
             os.close(fd)
             if e.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
@@ -456,15 +470,12 @@ def output_lock(out, what: str = "--out"):
         except FileNotFoundError:
             same = False
         if same:
-            break
-        os.close(fd)
-    try:
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
-        yield lock
-    finally:
-        with contextlib.suppress(OSError):
-            os.unlink(lock)
+            try:
+                os.ftruncate(fd, 0)
+                os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+            except OSError:
+                pass
+            return fd
         os.close(fd)
 
 
@@ -515,20 +526,21 @@ def atomic_output_dir(out, *, command=None, inputs=()):
     Parameters are those of :func:`check_output_dir`.
     """
     out = check_output_dir(out, command=command, inputs=inputs)
+    created = []
     try:
-        created = _make_parents(out.parent)
-    except OSError as e:
-        raise UserError(f"--out {out}: cannot create the folder ({_reason(e)})") from None
-    try:
+        try:
+            _make_parents(out.parent, created)
+        except OSError as e:
+            raise UserError(f"--out {out}: cannot create the folder ({_reason(e)})") from None
         with output_lock(out):
             clean_stale_temporaries(out.parent)
             check_output_dir(out, command=command, inputs=inputs)
+            tmp = out.parent / _temp_name(out.name)
             try:
-                tmp = out.parent / _temp_name(out.name)
-                tmp.mkdir(mode=0o700)
-            except OSError as e:
-                raise UserError(f"--out {out}: cannot create the folder ({_reason(e)})") from None
-            try:
+                try:
+                    tmp.mkdir(mode=0o700)
+                except OSError as e:
+                    raise UserError(f"--out {out}: cannot create the folder ({_reason(e)})") from None
                 yield tmp
                 _write_marker(tmp, command, _tree(tmp))
                 os.chmod(tmp, _dir_mode())
@@ -596,11 +608,11 @@ class OutputFolder:
         rel = self._rel(rel)
         try:
             target = self._prepare_parent(rel)
-            tmp = target.parent / _temp_name(target.name)
-            tmp.mkdir(mode=0o700)
         except OSError as e:
             raise UserError(f"--out {self.path}: cannot write the output ({_reason(e)})") from None
+        tmp = target.parent / _temp_name(target.name)
         try:
+            tmp.mkdir(mode=0o700)
             yield tmp
             os.chmod(tmp, _dir_mode())
             self._entries |= {rel + "/"} | {f"{rel}/{e}" for e in _tree(tmp)}
@@ -650,12 +662,13 @@ def open_output_dir(out, *, command=None, inputs=()):
     before an error stay (that is the point of resuming); a half-written part never does.
     """
     out = check_output_dir(out, command=command, inputs=inputs)
-    try:
-        created = _make_parents(out.parent)
-    except OSError as e:
-        raise UserError(f"--out {out}: cannot create the folder ({_reason(e)})") from None
     fresh = not out.exists()
+    created = []
     try:
+        try:
+            _make_parents(out.parent, created)
+        except OSError as e:
+            raise UserError(f"--out {out}: cannot create the folder ({_reason(e)})") from None
         with output_lock(out):
             clean_stale_temporaries(out.parent)
             check_output_dir(out, command=command, inputs=inputs)
@@ -710,12 +723,11 @@ def atomic_output_files(paths, *, overwrite=False, inputs=(), what="--out"):
     targets = check_output_files(paths, overwrite=overwrite, inputs=inputs, what=what)
     created = []
     try:
-        for t in targets:
-            created += _make_parents(t.parent)
-    except OSError as e:
-        _remove_created(created)
-        raise UserError(f"{what} {targets[0]}: cannot create the folder ({_reason(e)})") from None
-    try:
+        try:
+            for t in targets:
+                _make_parents(t.parent, created)
+        except OSError as e:
+            raise UserError(f"{what} {targets[0]}: cannot create the folder ({_reason(e)})") from None
         with output_lock(targets[0], what=what):
             for parent in {t.parent for t in targets}:
                 clean_stale_temporaries(parent)

@@ -44,9 +44,20 @@ def _raise(signum):
     raise Terminated(signum)
 
 
+#: a repeat of the signal within this many seconds is taken as the same one delivered twice
+#: (libLLVM's own handler re-raises it), not as a second request: the first one's clean-up runs
+REPEAT_S = 2.0
+_first_time = None
+
+
 def _handler(signum, frame):
-    global _received, _pending
-    _received = signum
+    global _received, _pending, _first_time
+    import time
+
+    now = time.monotonic()
+    if _received is not None and _first_time is not None and now - _first_time < REPEAT_S:
+        return
+    _received, _first_time = signum, now
     if _defer_depth:
         _pending = signum
         return
@@ -92,8 +103,8 @@ def received() -> int | None:
 
 def reset() -> None:
     """Forget signals received so far (an entry point that runs several commands in one process)."""
-    global _received, _pending
-    _received = _pending = None
+    global _received, _pending, _first_time
+    _received = _pending = _first_time = None
 
 
 def exit_code(signum: int) -> int:

@@ -500,7 +500,7 @@ def test_a_signal_while_writing_leaves_nothing(tmp_path, sig, code, word):
     assert _wait_for(lambda: any(".tmp-" in n for n in _temporaries(tmp_path, "out")), proc), proc.communicate()
     proc.send_signal(sig)
     out, err = proc.communicate(timeout=120)
-    assert proc.returncode in (code, -sig), err  # -sig: Dr.Jit's LLVM re-raised it after our exit code
+    assert proc.returncode == code, err
     assert err.strip().splitlines() == [f"thinfilm: {word}"] and out == ""
     assert snapshot(tmp_path) == before, diff(before, snapshot(tmp_path))
 
@@ -545,7 +545,7 @@ def _mapped(pid, name):
 
 
 @pytest.mark.skipif(not Path("/proc/self/maps").exists(), reason="needs /proc to see the start-up phase")
-@pytest.mark.parametrize("library, delay", [("numpy", 0.0), ("drjit", 0.0), ("drjit", 0.05), ("mitsuba", 0.15)])
+@pytest.mark.parametrize("library, delay", [("numpy", 0.0), ("drjit", 0.0), ("mitsuba", 0.1)])
 def test_ctrl_c_during_start_up_is_one_line(tmp_path, library, delay):
     # Wait until the command is importing its libraries (numpy: the command's module; drjit,
     # mitsuba: choosing the Mitsuba variant, where an interrupt was once blamed on libLLVM).
@@ -557,7 +557,7 @@ def test_ctrl_c_during_start_up_is_one_line(tmp_path, library, delay):
     assert "Traceback" not in err and "libLLVM" not in err, err
     if proc.returncode == 0:  # it finished first: a success, nothing to clean
         return
-    assert proc.returncode in (130, -signal.SIGINT), (proc.returncode, err)
+    assert proc.returncode == 130, (proc.returncode, err)
     assert err.strip().splitlines() == ["thinfilm: interrupted"], (proc.returncode, err)
     assert sorted(p.name for p in tmp_path.iterdir()) == []
 

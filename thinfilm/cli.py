@@ -293,6 +293,16 @@ def main(argv=None) -> int:
                 if text not in shown:
                     shown.add(text)
                     sys.stderr.write(text)
+        if argv is None and code is not None and code >= 128:
+            # Run as the program and interrupted: the clean-up is done; exit with the code
+            # itself. (An interrupt that landed inside a library's embedded Python call leaves
+            # the interpreter believing it went unhandled, and it would then kill itself with
+            # the signal at exit instead of returning 130 or 143.)
+            import os
+
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(code)
         return code
     finally:
         for signum, handler in previous.items():
