@@ -159,7 +159,10 @@ def _umask() -> int:
 
 
 def _resolve(path) -> Path:
-    return Path(os.path.abspath(os.path.expanduser(os.fspath(path)))).resolve()
+    try:
+        return Path(os.path.abspath(os.path.expanduser(os.fspath(path)))).resolve()
+    except (RuntimeError, OSError) as e:  # a loop of symbolic links
+        raise UserError(f"--out {path}: cannot resolve the path ({e})") from None
 
 
 def _reason(e: OSError) -> str:

@@ -36,6 +36,8 @@ LIMITS = {
     "seed": (0, 2**32 - 1),
     "renders_per_image": (1, 20000),     # sub-wavelengths rendered for all bands together
     "wavelength_nm": (1.0, 1e5),
+    "index": (0.01, 100.0),              # refractive index n (real part)
+    "extinction": (0.0, 100.0),          # extinction coefficient k
 }
 
 # --- the schema ----------------------------------------------------------------------------
@@ -66,7 +68,7 @@ _FILM_KEYS = {"ior": ("ior", 1.37), "roughness": ("roughness", 0.0)}
 #: with it)
 _STACK_KEYS = {"layers": ("layers", _REQUIRED), "roughness": ("roughness", 0.0)}
 _LAYER_KEYS = {"ior": ("ior", _REQUIRED), "thickness_nm": ("layer_thickness", _REQUIRED)}
-_SUBSTRATE_KEYS = {"ior": ("positive", 1.6), "k": ("nonnegative", 0.0)}
+_SUBSTRATE_KEYS = {"ior": ("index", 1.6), "k": ("extinction", 0.0)}
 _RIG_KEYS = {
     "resolution": ("resolution", 256),
     "wavelengths_nm": ("wavelengths", {"start": 400.0, "stop": 720.0, "step": 4.0}),
@@ -148,9 +150,9 @@ class Checker:
         if kind == "thickness":
             return self.bounded(where, value, "thickness_nm", "a film thickness in nm")
         if kind == "layer_thickness":
-            v = self.bounded(where, value, "thickness_nm", "a layer thickness in nm")
-            if v <= 0:
-                self.fail(where, "a layer thickness in nm > 0", value)
+            v = self.check("positive", where, value)
+            if v > LIMITS["thickness_nm"][1]:
+                self.fail(where, f"a layer thickness in nm up to {LIMITS['thickness_nm'][1]:g}", value)
             return v
         if kind == "fwhm":
             return self.bounded(where, value, "band_fwhm_nm", "a passband width in nm")
@@ -261,11 +263,19 @@ class Checker:
                     parsed = None
                 if parsed is None or (hasattr(parsed, "name") and value not in material_names()):
                     self.fail(where, f"a number, 'n+ki' or one of {', '.join(material_names())}", value)
+                if hasattr(parsed, "n"):
+                    self.bounded(where, parsed.n, "index", "a refractive index")
+                    self.bounded(where, parsed.k, "extinction", "an extinction coefficient k")
                 return value
             v = self.number(where, value)
-            if v <= 0:
-                self.fail(where, "a refractive index > 0 or a material name", value)
+            lo, hi = LIMITS["index"]
+            if not lo <= v <= hi:
+                self.fail(where, f"a refractive index from {lo:g} to {hi:g}, or a material name", value)
             return v
+        if kind == "index":
+            return self.bounded(where, value, "index", "a refractive index")
+        if kind == "extinction":
+            return self.bounded(where, value, "extinction", "an extinction coefficient")
         if kind == "angles":
             if not isinstance(value, list) or not value:
                 self.fail(where, "a list of polarizer angles in degrees", value)

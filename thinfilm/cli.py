@@ -65,6 +65,14 @@ def _positive_float(text):
     return value
 
 
+def _index(text):
+    """A refractive index on the command line: 0.01 to 100, as in scene specs."""
+    value = _positive_float(text)
+    if not 0.01 <= value <= 100.0:
+        raise argparse.ArgumentTypeError(f"expected a refractive index from 0.01 to 100, got {text!r}")
+    return value
+
+
 def _nonnegative_float(text):
     import math
 
@@ -123,8 +131,8 @@ def build_parser() -> argparse.ArgumentParser:
     rgb = rsub.add_parser("rgb", help="from polarized RGB images (known film index)")
     rgb.add_argument("dataset")
     rgb.add_argument("--out", required=True)
-    rgb.add_argument("--film-ior", type=_positive_float, default=None)
-    rgb.add_argument("--substrate-ior", type=_positive_float, default=None)
+    rgb.add_argument("--film-ior", type=_index, default=None)
+    rgb.add_argument("--substrate-ior", type=_index, default=None)
     rgb.add_argument("--thickness-range", type=_nonnegative_float, nargs=2, metavar=("MIN", "MAX"), default=None)
     rgb.add_argument("--method", default=None,
                      help="a method of 'thinfilm methods', or package.module:function (default: the kind's default)")
@@ -133,7 +141,7 @@ def build_parser() -> argparse.ArgumentParser:
     sp = rsub.add_parser("spectral", help="from s-polarized hyperspectral images (film index estimated)")
     sp.add_argument("dataset")
     sp.add_argument("--out", required=True)
-    sp.add_argument("--substrate-ior", type=_positive_float, default=None)
+    sp.add_argument("--substrate-ior", type=_index, default=None)
     sp.add_argument("--method", default=None,
                     help="a method of 'thinfilm methods', or package.module:function (default: the kind's default)")
     sp.add_argument("--mask", default=None, help="optional mask image (non-zero on the object)")

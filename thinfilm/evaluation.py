@@ -307,11 +307,30 @@ def estimated_film(dataset, estimate, estimate_path):
         sub = estimate.substrate_ior if estimate.substrate_ior is not None else dataset.meta.get("substrate_ior")
         if sub is None:
             raise UserError(f"{js}: no 'substrate_ior', and the dataset's meta.json has none") from None
-        return Film.single(index, None, sub, where=str(js))
+        film = Film.single(index, None, sub, where=str(js))
+        _check_indices(film, js, estimate, dataset.path / "meta.json")
+        return film
     film = film.with_index(index)
     if estimate.substrate_ior is not None and abs(estimate.substrate_ior - film.effective_substrate_index()) > 1e-12:
         film = film.with_substrate(estimate.substrate_ior)
+    _check_indices(film, js, estimate, dataset.path / "meta.json")
     return film
+
+
+#: refractive indices (real part) the re-rendering accepts, as the scene specs do
+INDEX_RANGE = (0.01, 100.0)
+
+
+def _check_indices(film, estimate_json, estimate, meta_json) -> None:
+    lo, hi = INDEX_RANGE
+    n2, n3 = film.effective_index(), film.effective_substrate_index()
+    if not lo <= n2 <= hi:
+        raise UserError(f"{estimate_json}: field 'film_ior' must be a refractive index from {lo:g} to {hi:g}, "
+                        f"got {n2:g}")
+    if not lo <= n3 <= hi:
+        where = (f"{estimate_json}: field 'substrate_ior'" if estimate.substrate_ior is not None
+                 else f"{meta_json}: the substrate index")
+        raise UserError(f"{where} must be a refractive index from {lo:g} to {hi:g}, got {n3:g}")
 
 
 def _evaluate(dataset_path, estimate_path, progress=False) -> dict:
