@@ -100,7 +100,6 @@ import secrets
 import shutil
 import socket
 import sys
-import tempfile
 from pathlib import Path
 
 from . import signals
@@ -123,10 +122,6 @@ __all__ = [
 #: The file that marks a folder as an output of this tool.
 MARKER = ".thinfilm-output"
 MARKER_FORMAT = "thinfilm-output/1"
-
-#: errno values that mean "the output could not be written" (not "the input is bad").
-_WRITE_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EFBIG, errno.EIO, errno.EACCES,
-                 errno.EPERM, errno.ENAMETOOLONG, errno.EMFILE, errno.ENFILE}
 
 _TEMP_RE = re.compile(r"^\.(?P<name>.+)\.(?P<kind>tmp|old)-(?P<pid>\d+)@(?P<host>[A-Za-z0-9-]{1,32})-"
                       r"(?P<rand>[A-Za-z0-9_]{8})(?P<ext>\.[A-Za-z0-9]{1,8})?$")
