@@ -109,6 +109,15 @@ def _full_disk(monkeypatch, c):
     monkeypatch.setattr(io, "write_exr", full)
 
 
+def _full_disk_render(monkeypatch, c):
+    import thinfilm.render as render_module
+
+    def full(mi, bitmap, path, file_format):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+
+    monkeypatch.setattr(render_module, "_write_bitmap", full)
+
+
 def gen(*extra, out="out"):
     return lambda c: ["generate", "hemisphere", *SMALL, *extra, "--out", c.p(out) if out else "/"]
 
@@ -191,6 +200,8 @@ CASES = [
     Case("render/out-under-a-file", render(out="blocker/img"), "cannot create the folder",
          setup=lambda c: c.write("blocker", "a file")),
     Case("render/lock-held", render(), "another thinfilm command", hold=_lock("img.exr")),
+    Case("render/full-disk", render(out="new/img"), "cannot write the output (No space left on device)",
+         patch=_full_disk_render),
 
     # --- generate ---------------------------------------------------------------------------------
     Case("generate/unknown-preset", lambda c: ["generate", "hemisfear", "--out", c.p("out")], "unknown preset"),

@@ -227,7 +227,7 @@ def render_to_files(scene, out_stem, spp=None, seed=0, exposure="auto", overwrit
         except Exception as e:
             raise UserError(f"cannot render the scene: {_one_line(e)}") from None
         bitmap = scene.sensors()[0].film().bitmap(raw=False)
-        bitmap.write(str(tmp_exr))
+        _write_bitmap(mi, bitmap, tmp_exr, mi.Bitmap.FileFormat.OpenEXR)
         # The first group of channels is the image itself (RGB, luminance or Stokes S0).
         parts = bitmap.split()
         image = np.array(parts[0][1], dtype=np.float32)
@@ -239,8 +239,16 @@ def render_to_files(scene, out_stem, spp=None, seed=0, exposure="auto", overwrit
         image = image * _gain(image, exposure)
         srgb = mi.Bitmap(image.astype(np.float32), mi.Bitmap.PixelFormat.RGB).convert(
             mi.Bitmap.PixelFormat.RGB, mi.Struct.Type.UInt8, srgb_gamma=True)
-        srgb.write(str(tmp_png))
+        _write_bitmap(mi, srgb, tmp_png, mi.Bitmap.FileFormat.PNG)
     return exr, png
+
+
+def _write_bitmap(mi, bitmap, path: Path, file_format) -> None:
+    """Encode in memory, then write with Python: a full disk raises ``OSError`` (Mitsuba's
+    own file writer leaves an empty file and reports success)."""
+    stream = mi.MemoryStream()
+    bitmap.write(stream, file_format)
+    Path(path).write_bytes(stream.raw_buffer()[:stream.size()])
 
 
 def cli_main(args) -> int:
