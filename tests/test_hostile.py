@@ -138,6 +138,30 @@ def ev(ds="ds", est="est", out="out"):
     return lambda c: ["evaluate", c.p(ds), c.p(est), "--out", c.p(out)]
 
 
+def _images(c):
+    from PIL import Image
+
+    for a in (0, 45, 90, 135):
+        path = c.root / "imgs" / f"a{a:03d}.png"
+        path.parent.mkdir(exist_ok=True)
+        Image.fromarray(np.full((8, 8, 3), 60 + a // 3, np.uint8)).save(path)
+
+
+def imp(*extra, out="out"):
+    return lambda c: ["import", "polarization", *[c.p("imgs", f"a{a:03d}.png") for a in (0, 45, 90, 135)],
+                      "--layout", "separate", "--angles", "0,45,90,135", *extra, "--out", c.p(out)]
+
+
+def _spectrum(c, values=None):
+    wl = np.arange(400.0, 701.0, 10.0)
+    r = 0.04 + 0.02 * np.cos(wl / 30.0) if values is None else values(wl)
+    c.write("s.txt", "".join(f"{w:g},{v!r}\n" for w, v in zip(wl, r)))
+
+
+def fit(*extra, spectrum="s.txt"):
+    return lambda c: ["fit-spectrum", c.p(spectrum), "--film-ior", "1.38", "--substrate-ior", "1.52", *extra]
+
+
 CSV_OK = "wavelength_nm,r,g,b\n400,0.1,0.2,0.3\n500,0.4,0.5,0.6\n600,0.7,0.5,0.2\n700,0.3,0.2,0.1\n"
 NOT_UTF8 = b"\xff\xfe\x00 not text \x81"
 
@@ -422,6 +446,32 @@ CASES = [
          setup=_exr_edit("est/estimate.exr", lambda ch: ch.update({k: v[:4, :5] for k, v in ch.items()}))),
     Case("evaluate/lock-held", ev(), "another thinfilm command", hold=_lock("out")),
 
+    # --- import ----------------------------------------------------------------------------------------
+    Case("import/out-is-the-images-folder", imp(out="imgs"), "contains the input", setup=_images),
+    Case("import/out-is-an-image", imp(out="imgs/a000.png"), "is the input", setup=_images),
+    Case("import/out-over-a-generated-dataset", imp(out="ds"), "holds the output of 'thinfilm generate'",
+         setup=_images),
+    Case("import/out-a-folder-of-user-files", imp(), "not a thinfilm output",
+         setup=lambda c: (_images(c), c.write("out/raw/IMG_0001.CR2", b"camera raw"))),
+    Case("import/lock-held", imp(), "another thinfilm command", setup=_images, hold=_lock("out")),
+    Case("import/missing-image", imp(), "a135.png",
+         setup=lambda c: (_images(c), os.unlink(c.p("imgs", "a135.png")))),
+    Case("import/spectral-missing-cube", lambda c: ["import", "spectral", c.p("cube.hdr"), "--out", c.p("out")],
+         "cube.hdr"),
+
+    # --- fit-spectrum ------------------------------------------------------------------------------------
+    Case("fit-spectrum/missing-file", fit(spectrum="none.txt"), "none.txt: no such file"),
+    Case("fit-spectrum/nan-value", fit(), "not a finite number",
+         setup=lambda c: _spectrum(c, lambda wl: np.where(wl == 500, np.nan, 0.05))),
+    Case("fit-spectrum/text-cell", fit(), "is not a number", setup=lambda c: c.write("s.txt", "400,0.1\n410,high\n")),
+    Case("fit-spectrum/thickness-range-1e12", fit("--thickness-range", "0", "1e12"), "--thickness-range: MAX",
+         setup=_spectrum),
+    Case("fit-spectrum/film-index-1e-300", lambda c: ["fit-spectrum", c.p("s.txt"), "--film-ior", "1e-300",
+                                                      "--substrate-ior", "1.52"], "--film-ior", setup=_spectrum),
+    Case("fit-spectrum/cauchy-1e300", lambda c: ["fit-spectrum", c.p("s.txt"), "--film-ior", "cauchy:1e300,0",
+                                                 "--substrate-ior", "1.52"], "Cauchy constants", setup=_spectrum),
+    Case("fit-spectrum/angle-1e300", fit("--angle", "1e300"), "--angle", setup=_spectrum),
+
     # --- benchmark --------------------------------------------------------------------------------
     Case("benchmark/out-over-a-dataset", lambda c: ["benchmark", "--quick", "--out", c.ds],
          "holds the output of 'thinfilm generate'"),
@@ -452,7 +502,8 @@ def test_the_corpus_is_large_and_covers_every_subcommand():
     ids = [c.id for c in CASES]
     assert len(ids) == len(set(ids)) and len(ids) >= 100
     commands = {i.split("/")[0] for i in ids}
-    assert {"render", "generate", "reconstruct", "evaluate", "benchmark", "methods"} <= commands
+    assert {"render", "generate", "reconstruct", "evaluate", "benchmark", "methods", "import",
+            "fit-spectrum"} <= commands
 
 
 @pytest.mark.parametrize("case", CASES, ids=[c.id for c in CASES])
@@ -481,7 +532,8 @@ def test_hostile_input(case, base, tmp_path, monkeypatch, capfd):
     assert lines[0].startswith(("thinfilm: error:", "thinfilm generate: error:", "thinfilm render: error:",
                                 "thinfilm reconstruct: error:", "thinfilm evaluate: error:",
                                 "thinfilm benchmark: error:", "thinfilm methods: error:",
-                                "thinfilm reconstruct rgb: error:", "thinfilm reconstruct spectral: error:")), err
+                                "thinfilm reconstruct rgb: error:", "thinfilm reconstruct spectral: error:",
+                                "thinfilm import polarization: error:", "thinfilm fit-spectrum: error:")), err
     assert case.expect in lines[0], (case.id, lines[0])
     for word in case.absent:
         assert word not in lines[0], (case.id, lines[0])

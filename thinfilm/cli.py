@@ -373,7 +373,8 @@ def _run(argv) -> int:
             os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
     except MemoryError:
-        print("thinfilm: error: out of memory; use a smaller --resolution or fewer bands", file=sys.stderr)
+        print("thinfilm: error: out of memory: the inputs ask for more than this machine has (a smaller "
+              "resolution, fewer bands or a narrower range)", file=sys.stderr)
         return 2
     except Exception as e:
         if signals.received() is not None:
