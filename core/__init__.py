@@ -14,7 +14,9 @@ Modules
 :mod:`~thinfilm.core.io`
     Dataset and estimate folders: readers, writers, channel names, format version.
 :mod:`~thinfilm.core.outputs`
-    Safe output folders.
+    Safe output folders and files: the replacement rule, the marker, the lock, temporaries.
+:mod:`~thinfilm.core.signals`
+    SIGINT and SIGTERM as exceptions in the commands, so temporaries are cleaned up.
 :mod:`~thinfilm.core.registry`
     The estimator registry.
 :mod:`~thinfilm.core.variants`

@@ -52,16 +52,53 @@ def band_widths(wavelengths_nm) -> np.ndarray:
 
 
 def _read_csv(path: Path, columns: int, what: str) -> np.ndarray:
+    """Rows ``wavelength_nm, value × columns`` of a CSV (``#`` comments, an optional header
+    row): at least 2 rows, finite numbers, values >= 0, wavelengths increasing. Anything
+    else is one :class:`UserError` naming the file and the line."""
+    names = "wavelength_nm and " + (f"{columns} values" if columns > 1 else "a value")
     try:
-        data = np.loadtxt(path, delimiter=",", comments="#", ndmin=2)
-    except ValueError:
-        data = np.loadtxt(path, delimiter=",", comments="#", ndmin=2, skiprows=1)
-    except OSError:
+        text = Path(path).read_text(encoding="utf-8-sig")
+    except FileNotFoundError:
         raise UserError(f"{path}: {what} CSV not found") from None
-    if data.shape[1] != columns + 1:
-        raise UserError(f"{path}: {what} CSV needs {columns + 1} columns "
-                        f"(wavelength_nm and {columns} values), found {data.shape[1]}")
+    except UnicodeDecodeError:
+        raise UserError(f"{path}: {what} CSV is not a UTF-8 text file") from None
+    except OSError as e:
+        raise UserError(f"{path}: cannot read the {what} CSV ({e.strerror})") from None
+    rows = []
+    for lineno, line in enumerate(text.splitlines(), 1):
+        line = line.split("#", 1)[0].strip()
+        if not line:
+            continue
+        cells = [c.strip() for c in line.split(",")]
+        try:
+            values = [float(c) for c in cells]
+        except ValueError:
+            if not rows and not any(_is_float(c) for c in cells[:1]):
+                continue  # a header row
+            bad = next(c for c in cells if not _is_float(c))
+            raise UserError(f"{path}: line {lineno}: {what} CSV cell {bad!r} is not a number") from None
+        if len(values) != columns + 1:
+            raise UserError(f"{path}: line {lineno}: {what} CSV needs {columns + 1} columns ({names}), "
+                            f"found {len(values)}")
+        if not all(np.isfinite(values)):
+            raise UserError(f"{path}: line {lineno}: {what} CSV holds NaN or infinity")
+        if values[0] <= 0 or any(v < 0 for v in values[1:]):
+            raise UserError(f"{path}: line {lineno}: {what} CSV needs a wavelength > 0 and values >= 0")
+        rows.append(values)
+    if len(rows) < 2:
+        raise UserError(f"{path}: {what} CSV needs at least 2 rows of {names}, found {len(rows)}")
+    data = np.asarray(rows, dtype=np.float64)
+    if np.any(np.diff(data[:, 0]) <= 0):
+        raise UserError(f"{path}: {what} CSV wavelengths must be increasing")
     return data
+
+
+def _is_float(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
 
 
 @functools.lru_cache(maxsize=32)
@@ -121,6 +158,9 @@ def camera_weights(wavelengths_nm, camera: str = DEFAULT_CAMERA,
     w = camera_sensitivities(camera, wavelengths_nm) * (
         illuminant_spd(illuminant, wavelengths_nm) * band_widths(wavelengths_nm))[:, None]
     total = w.sum(axis=0)
+    if not np.all(np.isfinite(total)):
+        raise UserError(f"camera {camera!r} and illuminant {illuminant!r}: their product overflows over "
+                        f"{wavelengths_nm[0]:.0f}-{wavelengths_nm[-1]:.0f} nm (values too large)")
     if np.any(total <= 0):
         raise UserError(f"camera {camera!r} and illuminant {illuminant!r} give no signal over "
                         f"{wavelengths_nm[0]:.0f}-{wavelengths_nm[-1]:.0f} nm")

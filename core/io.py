@@ -23,7 +23,12 @@ Examples
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import json
+import math
+import os
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -92,24 +97,99 @@ def write_exr(path, channels: dict) -> None:
         raise ValueError(f"{path}: channels must be 2-D arrays of one shape, got {shapes}")
     data = {k: np.ascontiguousarray(v, dtype=np.float32) for k, v in sorted(channels.items())}
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    with OpenEXR.File(header, data) as f:
-        f.write(str(path))
+    with _c_output() as printed:
+        try:
+            with OpenEXR.File(header, data) as f:
+                f.write(str(path))
+        except OSError:
+            raise
+        except Exception as e:  # OpenEXR reports a full disk as a RuntimeError
+            text = f"{e} {printed()}"
+            code = next((c for c, words in _ERRNO_WORDS.items() if words in text), None)
+            if code is None:
+                raise
+            raise OSError(code, os.strerror(code), str(path)) from None
+
+
+_ERRNO_WORDS = {errno.ENOSPC: "No space left on device", errno.EDQUOT: "Disk quota exceeded",
+                errno.EROFS: "Read-only file system", errno.EACCES: "Permission denied",
+                errno.EFBIG: "File too large"}
+
+
+@contextlib.contextmanager
+def _c_output():
+    """Catch what C libraries print on file descriptors 1 and 2 meanwhile (OpenEXR prints
+    its own messages about damaged files): yields a function that returns the text.
+    Python's own ``sys.stdout`` and ``sys.stderr`` are flushed first and keep working."""
+    import tempfile
+
+    captured = {"text": ""}
+    try:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        saved = (os.dup(1), os.dup(2))
+    except (OSError, ValueError, AttributeError):
+        yield lambda: captured["text"]
+        return
+    import io
+
+    sink = tempfile.TemporaryFile()
+    py_sink = io.StringIO()  # what the bindings print through Python's sys.stdout
+    try:
+        os.dup2(sink.fileno(), 1)
+        os.dup2(sink.fileno(), 2)
+
+        def text():
+            _flush_c_stdio()
+            sink.seek(0)
+            return " ".join((sink.read().decode("utf-8", "replace") + py_sink.getvalue()).split())
+
+        with contextlib.redirect_stdout(py_sink), contextlib.redirect_stderr(py_sink):
+            yield text
+    finally:
+        _flush_c_stdio()
+        os.dup2(saved[0], 1)
+        os.dup2(saved[1], 2)
+        os.close(saved[0])
+        os.close(saved[1])
+        sink.close()
+
+
+def _flush_c_stdio() -> None:
+    try:
+        import ctypes
+
+        ctypes.CDLL(None).fflush(None)
+    except (OSError, AttributeError):
+        pass
 
 
 def read_exr(path) -> dict:
-    """Read every channel of an EXR file as float32 H×W arrays."""
+    """Read every channel of an EXR file as float32 H×W arrays. A missing, damaged or
+    truncated file is one :class:`UserError` naming it (OpenEXR's own messages on the
+    terminal are caught and left out)."""
     import OpenEXR
 
     path = Path(path)
     if not path.is_file():
         raise UserError(f"{path}: file not found")
-    try:
-        with OpenEXR.File(str(path), separate_channels=True) as f:
-            return {k: np.asarray(v.pixels, dtype=np.float32) for k, v in f.channels().items()}
-    except UserError:
-        raise
-    except Exception as e:  # OpenEXR raises plain exceptions for damaged files
-        raise UserError(f"{path}: not a readable EXR file ({e})") from None
+    with _c_output() as printed:
+        try:
+            with OpenEXR.File(str(path), separate_channels=True) as f:
+                channels = {k: np.asarray(v.pixels) for k, v in f.channels().items()}
+        except Exception as e:  # OpenEXR raises plain exceptions for damaged files
+            detail = printed() or str(e)
+            if "EXR_ERR_BAD_CHUNK_LEADER" in detail or "corrupt" in detail or "scanline" in detail:
+                reason = "damaged or truncated"
+            else:
+                reason = (str(e) or type(e).__name__).splitlines()[0]
+            raise UserError(f"{path}: not a readable EXR file ({reason})") from None
+    out = {}
+    for k, v in channels.items():
+        if v.ndim != 2 or v.dtype.kind not in "fui":
+            raise UserError(f"{path}: channel '{k}' is not an image of numbers")
+        out[k] = v.astype(np.float32, copy=False)
+    return out
 
 
 def _require(channels: dict, names, path, shape=None):
@@ -145,6 +225,14 @@ def _check_meta(meta, meta_path):
     wl = meta.get("wavelengths_nm", [])
     if len(wl) > 1 and np.any(np.diff(wl) <= 0):
         raise UserError(f"{meta_path}: 'wavelengths_nm' must be increasing")
+    if any(v <= 0 for v in wl):
+        raise UserError(f"{meta_path}: 'wavelengths_nm' must be wavelengths in nm > 0")
+    angles = meta.get("polarizer_angles_deg", [])
+    if any(v != round(v) or not 0 <= v < 360 for v in angles):
+        raise UserError(f"{meta_path}: 'polarizer_angles_deg' must be whole degrees from 0 to 359 "
+                        f"(layer names pol000 … pol359), got {angles!r}"[:300])
+    if len(set(angles)) != len(angles):
+        raise UserError(f"{meta_path}: 'polarizer_angles_deg' holds an angle twice, got {angles!r}"[:300])
 
 
 @dataclass
@@ -245,7 +333,7 @@ def read_dataset(path, need=("polarized_rgb",), optional=None) -> Dataset:
     if not root.is_dir():
         raise UserError(f"{root}: dataset folder not found")
     meta_path = root / "meta.json"
-    meta = read_json(meta_path, missing="not a thinfilm dataset folder")
+    meta = read_json(meta_path, missing="not a thinfilm dataset folder", finite=True)
     _check_meta(meta, meta_path)
     if meta.get("format") != FORMAT:
         raise UserError(f"{meta_path}: unknown format {meta.get('format')!r}, expected '{FORMAT}'")
@@ -275,6 +363,7 @@ def read_dataset(path, need=("polarized_rgb",), optional=None) -> Dataset:
         p, ch = got
         shape = next(iter(ch.values())).shape
         gt = _require(ch, GROUND_TRUTH_CHANNELS, p, shape)
+        _no_nan(np.stack([gt[k] for k in GROUND_TRUTH_CHANNELS], axis=-1), p, list(GROUND_TRUTH_CHANNELS))
         ds.ground_truth = {
             "normal": np.stack([gt["normal.X"], gt["normal.Y"], gt["normal.Z"]], axis=-1),
             "zenith": gt["zenith"], "azimuth": gt["azimuth"], "thickness": gt["thickness"],
@@ -329,18 +418,46 @@ def read_dataset(path, need=("polarized_rgb",), optional=None) -> Dataset:
     return ds
 
 
-def read_json(path, missing=None):
+def read_json(path, missing=None, finite=False):
     """Parse a JSON file; a missing or malformed file is a one-line :class:`UserError`
-    (``missing`` adds a hint to the not-found message)."""
+    (``missing`` adds a hint to the not-found message). With ``finite``, a ``NaN`` or
+    ``Infinity`` anywhere in it is refused too, naming the field."""
     path = Path(path)
     if not path.is_file():
         raise UserError(f"{path}: file not found" + (f" ({missing})" if missing else ""))
     try:
-        return json.loads(path.read_text())
+        data = json.loads(path.read_text(encoding="utf-8"))
     except json.JSONDecodeError as e:
         raise UserError(f"{path}: not valid JSON ({e.msg} at line {e.lineno})") from None
     except UnicodeDecodeError:
         raise UserError(f"{path}: not a text file") from None
+    except RecursionError:
+        raise UserError(f"{path}: not valid JSON (nested too deeply)") from None
+    except OSError as e:
+        raise UserError(f"{path}: cannot read the file ({e.strerror})") from None
+    if finite:
+        bad = _non_finite(data)
+        if bad is not None:
+            raise UserError(f"{path}: '{bad}' is NaN or infinite; expected a number")
+    return data
+
+
+def _non_finite(data, where=""):
+    """The key path of the first NaN or infinite number in parsed JSON, or None."""
+    if isinstance(data, float) and not math.isfinite(data):
+        return where or "(top level)"
+    if isinstance(data, dict):
+        items = data.items()
+    elif isinstance(data, list):
+        items = ((f"[{i}]", v) for i, v in enumerate(data))
+    else:
+        return None
+    for key, value in items:
+        sub = f"{where}{key}" if str(key).startswith("[") else (f"{where}.{key}" if where else str(key))
+        found = _non_finite(value, sub)
+        if found is not None:
+            return found
+    return None
 
 
 def write_json(path, data) -> None:
@@ -365,11 +482,14 @@ def read_mask_file(path, shape):
             import matplotlib.image as mpimg
 
             m = mpimg.imread(str(p))
+        m = np.asarray(m, dtype=np.float64)
     except UserError:
         raise
     except Exception as e:
-        raise UserError(f"{p}: cannot read the mask image ({e})") from None
-    m = np.asarray(m, dtype=np.float64)
+        reason = (str(e) or type(e).__name__).splitlines()[0]
+        raise UserError(f"{p}: cannot read the mask image ({reason})") from None
+    if not np.all(np.isfinite(m)):
+        raise UserError(f"{p}: mask image holds NaN or infinite values")
     if m.ndim == 3:
         m = m[..., :3].max(axis=-1) if m.shape[-1] >= 3 else m[..., 0]
     if m.shape != tuple(shape):

@@ -28,7 +28,7 @@ import time
 
 import numpy as np
 
-__all__ = ["ROUGH_SPP", "simulate", "rough_spp", "dataset_meta_of", "write_simulation",
+__all__ = ["ROUGH_SPP", "simulate", "rough_spp", "dataset_meta_of", "write_simulation", "spec_input_files",
            "generate_dataset", "cli_main"]
 
 #: samples per pixel of a rough film for the default camera (full well 10000 e-, 90 % of it
@@ -100,6 +100,12 @@ def simulate(spec, progress: bool = False) -> dict:
     scene = mi.load_dict(scene_dict)
     gt = cast_ground_truth(scene, thickness, frame)
     rig, noise = spec.rig, spec.noise.as_dict()
+    if not gt["mask"].any():
+        from thinfilm.core.errors import UserError
+
+        raise UserError(f"{spec.source}: the {spec.shape.kind} covers no pixel that faces the camera at "
+                        f"rig.resolution {rig.resolution} (seen edge-on, from behind, or degenerate); "
+                        f"there is nothing to capture")
     wl = rig.wavelengths
     t1 = time.perf_counter()
     spp = rough_spp(spec)
@@ -190,31 +196,42 @@ def write_simulation(sim: dict, spec, folder) -> None:
                        f"thinfilm dofp-rgb raw; pattern {info['pattern']}; {info['bits']}-bit values")
 
 
-def generate_dataset(spec, out_dir, progress: bool = True) -> dict:
+def spec_input_files(spec) -> list:
+    """The files a :class:`~.spec.SceneSpec` reads (mesh, thickness bitmap, camera and
+    illuminant CSVs): an output may not overwrite them."""
+    out = [spec.shape.params.get("path"), spec.thickness.get("path")]
+    out += [v for v in (spec.rig.camera, spec.rig.illuminant) if str(v).lower().endswith(".csv")]
+    return [p for p in out if p]
+
+
+def generate_dataset(spec, out_dir, progress: bool = True, inputs=()) -> dict:
     """Generate a dataset folder from a :class:`~.spec.SceneSpec`.
 
     The Mitsuba variant must be :data:`thinfilm.core.variants.RENDER_VARIANT` (set by the
-    caller). The folder is written atomically (:func:`thinfilm.core.outputs.atomic_output_dir`).
+    caller). The folder is written atomically and under its lock
+    (:func:`thinfilm.core.outputs.atomic_output_dir`); ``inputs`` are more files the output
+    may not replace (the spec file), besides those the spec names.
 
     Returns
     -------
     dict
         Timings in seconds (``scene``, ``render``, ``captures``, ``write``).
     """
-    from thinfilm.core.outputs import atomic_output_dir, check_output_dir
+    from thinfilm.core.outputs import atomic_output_dir
 
-    out = check_output_dir(out_dir, markers=("meta.json",))  # before the work, not after
-    sim = simulate(spec, progress=progress)
-    timings = dict(sim["timings_s"])
-    t = time.perf_counter()
-    with atomic_output_dir(out, markers=("meta.json",)) as tmp:
+    with atomic_output_dir(out_dir, command="generate", inputs=[*spec_input_files(spec), *inputs]) as tmp:
+        sim = simulate(spec, progress=progress)
+        timings = dict(sim["timings_s"])
+        t = time.perf_counter()
         write_simulation(sim, spec, tmp)
-    timings["write"] = time.perf_counter() - t
+        timings["write"] = time.perf_counter() - t
     return timings
 
 
 def cli_main(args) -> int:
     """``thinfilm generate SPEC.toml|PRESET --out DIR [--set k=v ...] [--resolution N] [--seed S]``."""
+    from pathlib import Path
+
     from thinfilm.core.outputs import check_output_dir
     from thinfilm.core.variants import use_variant
 
@@ -222,9 +239,11 @@ def cli_main(args) -> int:
 
     spec = load_spec(args.spec, overrides=list(args.overrides or ()), resolution=args.resolution,
                      seed=args.seed)
-    out = check_output_dir(args.out, markers=("meta.json",))
+    spec_file = Path(args.spec).expanduser()
+    inputs = [spec_file] if spec_file.is_file() else []
+    out = check_output_dir(args.out, command="generate", inputs=[*spec_input_files(spec), *inputs])
     use_variant()
-    t = generate_dataset(spec, out, progress=sys.stderr.isatty())
+    t = generate_dataset(spec, out, progress=sys.stderr.isatty(), inputs=inputs)
     raw = ", raw.tiff of a colour polarization sensor" if spec.rig.sensor == "dofp-rgb" else ""
     rough = ""
     if spec.roughness:

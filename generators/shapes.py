@@ -61,6 +61,11 @@ def _load_mesh(shape: dict):
                                    [np.zeros((1, 3)), np.ones((1, 1))]]))
     if not np.all(np.isfinite(mesh.vertices)):
         raise UserError(f"{path}: mesh has non-finite vertex positions")
+    size = float(np.max(mesh.extents)) if len(mesh.vertices) else 0.0
+    if not 1e-6 <= size <= 1e6:
+        raise UserError(f"{path}: the mesh is {size:g} scene units across after 'shape.scale' = "
+                        f"{shape.params['scale']:g}; expected 1e-06 to 1e+06 (Mitsuba's geometry is "
+                        f"single precision)")
     lo, hi = mesh.bounds
     mesh.apply_translation([-(lo[0] + hi[0]) / 2, -(lo[1] + hi[1]) / 2, -lo[2]])
     if mesh.is_watertight:

@@ -15,18 +15,29 @@ from thinfilm.core.errors import UserError
 
 from .frame import Frame
 
-__all__ = ["thickness_map", "thickness_texture", "film_bsdf"]
+__all__ = ["MAX_BITMAP_PIXELS", "read_thickness_bitmap", "thickness_map", "thickness_texture", "film_bsdf"]
 
 
-def _read_bitmap(path: str) -> np.ndarray:
+#: largest thickness bitmap read (pixels): 16384 x 16384
+MAX_BITMAP_PIXELS = 16384 * 16384
+
+
+def read_thickness_bitmap(path: str) -> np.ndarray:
+    """A thickness bitmap (``.exr``: channel ``thickness``, ``Y``, ``R`` or its only channel;
+    ``.npy``: a 2-D array of numbers) in nm, float64, checked: 2-D, finite, >= 0, at most
+    :data:`MAX_BITMAP_PIXELS`. One-line :class:`UserError` naming the file otherwise."""
     from thinfilm.core.io import read_exr
 
     lower = path.lower()
     if lower.endswith(".npy"):
         try:
-            img = np.load(path, allow_pickle=False)
+            img = np.load(path, mmap_mode="r", allow_pickle=False)
         except Exception as e:
-            raise UserError(f"{path}: cannot read thickness bitmap ({e})") from None
+            reason = str(e).splitlines()[0] if str(e) else type(e).__name__
+            raise UserError(f"{path}: cannot read thickness bitmap ({reason})") from None
+        if not (np.issubdtype(img.dtype, np.integer) or np.issubdtype(img.dtype, np.floating)) \
+                or np.issubdtype(img.dtype, np.bool_):
+            raise UserError(f"{path}: thickness bitmap must hold numbers (nm), found {img.dtype} values")
     elif lower.endswith(".exr"):
         ch = read_exr(path)
         for name in ("thickness", "Y", "R"):
@@ -40,13 +51,19 @@ def _read_bitmap(path: str) -> np.ndarray:
             img = next(iter(ch.values()))
     else:
         raise UserError(f"{path}: thickness bitmap must be an .exr or .npy file of thickness in nm")
-    img = np.asarray(img, dtype=np.float64)
     if img.ndim != 2 or min(img.shape) < 1:
         raise UserError(f"{path}: thickness bitmap must be a 2-D image, got shape {img.shape}")
+    if img.size > MAX_BITMAP_PIXELS:
+        raise UserError(f"{path}: thickness bitmap has {img.shape[1]}x{img.shape[0]} pixels, "
+                        f"at most {MAX_BITMAP_PIXELS} pixels are read")
+    img = np.array(img, dtype=np.float64)
     if not np.all(np.isfinite(img)):
         raise UserError(f"{path}: thickness bitmap contains NaN or infinite values")
     if img.min() < 0:
         raise UserError(f"{path}: thickness bitmap has negative thickness {img.min():g} nm")
+    if img.max() > 1e5:
+        raise UserError(f"{path}: thickness bitmap has thickness {img.max():g} nm, expected at most "
+                        f"1e+05 nm (values in nm)")
     return img
 
 
@@ -84,7 +101,7 @@ def thickness_map(profile: dict, frame: Frame):
         r = np.hypot(x - frame.object_center[0], y - frame.object_center[1]) / radius
         t = profile["center"] + (profile["edge"] - profile["center"]) * np.clip(r, 0.0, 1.0)
     elif kind == "bitmap":
-        t = _resample(_read_bitmap(profile["path"]), frame.resolution)
+        t = _resample(read_thickness_bitmap(profile["path"]), frame.resolution)
     else:  # pragma: no cover - validated by load_spec
         raise UserError(f"unknown thickness profile {kind!r}")
     return np.asarray(t, dtype=np.float32)

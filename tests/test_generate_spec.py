@@ -73,17 +73,24 @@ def test_absorbing_substrate_warns_that_spectral_s_is_not_rs():
 
 
 def test_warnings_reach_the_command_line_as_one_line(tmp_path):
+    # A warning is one line when the command succeeds; when it fails, its error is the only
+    # line (the contract of a bad input: exactly one line on stderr).
     import subprocess
     import sys
 
     blocker = tmp_path / "file"
     blocker.write_text("x")
-    run = subprocess.run([sys.executable, "-m", "thinfilm.cli", "generate", "hemisphere", "--set",
-                          "substrate.k=0.8", "--out", str(blocker)], capture_output=True, text=True)
+    argv = [sys.executable, "-m", "thinfilm.cli", "generate", "hemisphere", "--set", "substrate.k=0.8",
+            "--resolution", "8", "--set", "rig.wavelengths_nm.step=40"]
+    run = subprocess.run([*argv, "--out", str(blocker)], capture_output=True, text=True)
     assert run.returncode == 2
     err = run.stderr.strip().splitlines()
-    assert len(err) == 2 and err[0].startswith("thinfilm: warning: substrate k = 0.8 > 0")
-    assert err[1].startswith("thinfilm: error: --out") and "Traceback" not in run.stderr
+    assert len(err) == 1 and err[0].startswith("thinfilm: error: --out") and "Traceback" not in run.stderr
+    run = subprocess.run([*argv, "--out", str(tmp_path / "ds")], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    err = run.stderr.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("thinfilm: warning: substrate k = 0.8 > 0")
+    assert run.stdout.startswith("wrote ")
 
 
 def test_stack_specs():

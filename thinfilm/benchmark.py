@@ -98,7 +98,7 @@ def run_method(kind: str, dataset: Path, out: Path, method: str) -> None:
     from thinfilm.reconstruct import reconstruct
 
     est, _ = reconstruct(kind, dataset, method)
-    with atomic_output_dir(out) as tmp:
+    with atomic_output_dir(out, command="reconstruct", inputs=[dataset]) as tmp:
         write_estimate(tmp, est)
 
 
@@ -110,7 +110,7 @@ def _ground_truth_estimate(dataset: Path, out: Path) -> None:
     gt = ds.ground_truth
     est = Estimate(gt["normal"], gt["thickness"], gt["mask"], ds.meta["film_ior"], ds.meta["substrate_ior"],
                    info={"method": "ground_truth", "timings_s": {}})
-    with atomic_output_dir(out) as tmp:
+    with atomic_output_dir(out, command="reconstruct", inputs=[dataset]) as tmp:
         write_estimate(tmp, est)
 
 
@@ -159,7 +159,7 @@ def run_benchmark(out, quick=False, presets=None, progress=True, resolution=None
     t_start = time.perf_counter()
     results = {"quick": bool(quick), "resolution": resolution, "rows": [], "missing_kinds": missing,
                "methods": methods, "timings_s": {}}
-    with atomic_output_dir(out) as tmp:
+    with atomic_output_dir(out, command="benchmark") as tmp:
         bar = tqdm(plan, desc="benchmark", unit="step", disable=not progress, file=sys.stderr)
         for step, preset, kind, extra in bar:
             ds_dir = tmp / "datasets" / preset

@@ -12,6 +12,7 @@ as one ``thinfilm: warning: ...`` line each.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import sys
 
@@ -38,7 +39,60 @@ def _positive_int(text):
     return value
 
 
+def _bounded_int(lo, hi):
+    def parse(text):
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a whole number from {lo} to {hi}, got {text!r}") from None
+        if not lo <= value <= hi:
+            raise argparse.ArgumentTypeError(f"expected a whole number from {lo} to {hi}, got {value}")
+        return value
+
+    parse.__name__ = "whole number"
+    return parse
+
+
+def _positive_float(text):
+    import math
+
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}")
+    return value
+
+
+def _index(text):
+    """A refractive index on the command line: 0.01 to 100, as in scene specs."""
+    value = _positive_float(text)
+    if not 0.01 <= value <= 100.0:
+        raise argparse.ArgumentTypeError(f"expected a refractive index from 0.01 to 100, got {text!r}")
+    return value
+
+
+def _nonnegative_float(text):
+    import math
+
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not (math.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"expected a finite number >= 0, got {text!r}")
+    return value
+
+
+#: command-line limits (the scene spec's are :data:`thinfilm.generators.spec_schema.LIMITS`)
+MAX_SPP = 2**20
+MAX_SEED = 2**32 - 1
+
+
 def build_parser() -> argparse.ArgumentParser:
+    from .generators.spec_schema import LIMITS
+
     p = _Parser(
         prog="thinfilm",
         description="Spectral, polarized thin-film rendering, benchmark generation and reconstruction.",
@@ -51,8 +105,12 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("scene", help="Mitsuba scene: .xml, or a .toml/.json file holding a load_dict dictionary")
     r.add_argument("--out", required=True, help="output image path stem; writes STEM.exr and STEM.png")
     r.add_argument("--variant", default="llvm_ad_spectral_polarized", help="Mitsuba variant (default: %(default)s)")
-    r.add_argument("--spp", type=_positive_int, default=None, help="samples per pixel (overrides the scene)")
-    r.add_argument("--seed", type=int, default=0, help="sampler seed (default: %(default)s)")
+    r.add_argument("--spp", type=_bounded_int(1, MAX_SPP), default=None,
+                   help=f"samples per pixel, 1 to {MAX_SPP} (overrides the scene)")
+    r.add_argument("--seed", type=_bounded_int(0, MAX_SEED), default=0,
+                   help="sampler seed, 0 to 2^32 - 1 (default: %(default)s)")
+    r.add_argument("--overwrite", action="store_true",
+                   help="replace existing STEM.exr and STEM.png (never the scene's own files)")
     r.add_argument("--exposure", default="auto",
                    help="PNG brightness: 'auto' (99.5th percentile to 90%%) or a gain (the EXR stays linear)")
     r.set_defaults(target="thinfilm.render:cli_main")
@@ -62,8 +120,9 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--out", required=True)
     g.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a spec key, e.g. --set film.thickness.value=450 (repeatable)")
-    g.add_argument("--resolution", type=_positive_int, default=None)
-    g.add_argument("--seed", type=int, default=None)
+    g.add_argument("--resolution", type=_bounded_int(*LIMITS["resolution"]), default=None,
+                   help="image width and height in pixels (%d to %d)" % LIMITS["resolution"])
+    g.add_argument("--seed", type=int, default=None, help="overrides the spec's seed (0 to 2^32 - 1)")
     g.set_defaults(target="thinfilm.generators.generate:cli_main")
 
     rec = sub.add_parser("reconstruct", help="estimate normals, film index and thickness from a dataset")
@@ -72,9 +131,9 @@ def build_parser() -> argparse.ArgumentParser:
     rgb = rsub.add_parser("rgb", help="from polarized RGB images (known film index)")
     rgb.add_argument("dataset")
     rgb.add_argument("--out", required=True)
-    rgb.add_argument("--film-ior", type=float, default=None)
-    rgb.add_argument("--substrate-ior", type=float, default=None)
-    rgb.add_argument("--thickness-range", type=float, nargs=2, metavar=("MIN", "MAX"), default=None)
+    rgb.add_argument("--film-ior", type=_index, default=None)
+    rgb.add_argument("--substrate-ior", type=_index, default=None)
+    rgb.add_argument("--thickness-range", type=_nonnegative_float, nargs=2, metavar=("MIN", "MAX"), default=None)
     rgb.add_argument("--method", default=None,
                      help="a method of 'thinfilm methods', or package.module:function (default: the kind's default)")
     rgb.add_argument("--mask", default=None, help="optional mask image (non-zero on the object)")
@@ -82,7 +141,7 @@ def build_parser() -> argparse.ArgumentParser:
     sp = rsub.add_parser("spectral", help="from s-polarized hyperspectral images (film index estimated)")
     sp.add_argument("dataset")
     sp.add_argument("--out", required=True)
-    sp.add_argument("--substrate-ior", type=float, default=None)
+    sp.add_argument("--substrate-ior", type=_index, default=None)
     sp.add_argument("--method", default=None,
                     help="a method of 'thinfilm methods', or package.module:function (default: the kind's default)")
     sp.add_argument("--mask", default=None, help="optional mask image (non-zero on the object)")
@@ -195,27 +254,139 @@ def _one_line_warning(message, category, filename, lineno, line=None):
     return f"thinfilm: warning: {text}\n"
 
 
+def _one_line(text: str, limit: int = 400) -> str:
+    line = " ".join(str(text).split())
+    return line if len(line) <= limit else line[:limit - 1] + "…"
+
+
+def _debug() -> bool:
+    import os
+
+    return os.environ.get("THINFILM_DEBUG", "") not in ("", "0")
+
+
 def main(argv=None) -> int:
+    """Run one command; returns the exit code.
+
+    Exit codes: 0 success; 2 bad input or an output that cannot be written (one
+    ``thinfilm: error: ...`` line on stderr, nothing written); 130 on Ctrl-C and 143 on
+    SIGTERM (one line, temporary files removed). Warnings meant for users
+    (:class:`~thinfilm.core.errors.ThinfilmWarning`) are printed as one line each when the
+    command succeeds; when it fails, its error is the only line. Warnings of libraries are
+    not shown (``THINFILM_DEBUG=1`` shows them, and the traceback of an unexpected error).
+    """
+    import signal
     import warnings
 
-    warnings.formatwarning = _one_line_warning
-    args = build_parser().parse_args(argv)
-    module_name, func_name = args.target.split(":")
+    from .core import signals
+
+    previous = {}
+    if _is_main_thread():
+        for name in ("SIGINT", "SIGTERM", "SIGHUP"):
+            signum = getattr(signal, name, None)
+            if signum is not None:
+                previous[signum] = signal.getsignal(signum)
+        signals.install()
+    signals.reset()
     try:
-        module = importlib.import_module(module_name)
-    except ModuleNotFoundError as e:
-        if e.name and e.name.startswith("thinfilm"):
-            print(f"thinfilm: error: '{args.command}' is not available in this version", file=sys.stderr)
-            return 2
-        raise
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            code = _run(argv)
+        if code == 0 or code is None:
+            shown = set()
+            for w in caught:
+                if not (_is_ours(w.category) or _debug()):
+                    continue
+                text = _one_line_warning(w.message, w.category, w.filename, w.lineno)
+                if text not in shown:
+                    shown.add(text)
+                    sys.stderr.write(text)
+        if argv is None and code is not None and code >= 128:
+            # Run as the program and interrupted: the clean-up is done; exit with the code
+            # itself. (An interrupt that landed inside a library's embedded Python call leaves
+            # the interpreter believing it went unhandled, and it would then kill itself with
+            # the signal at exit instead of returning 130 or 143.)
+            import os
+
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(code)
+        return code
+    finally:
+        for signum, handler in previous.items():
+            if handler is not None:
+                signal.signal(signum, handler)
+
+
+def _is_main_thread() -> bool:
+    import threading
+
+    return threading.current_thread() is threading.main_thread()
+
+
+def _is_ours(category) -> bool:
+    from .core.errors import ThinfilmWarning
+
+    return issubclass(category, ThinfilmWarning)
+
+
+def _interrupted(signum) -> int:
+    import signal
+
+    from .core import signals
+
+    word = "interrupted" if signum in (None, signal.SIGINT) else "terminated"
+    print(f"thinfilm: {word}", file=sys.stderr)
+    return signals.exit_code(signum or signal.SIGINT)
+
+
+def _run(argv) -> int:
+    from .core import signals
+
     try:
+        args = build_parser().parse_args(argv)
+        module_name, func_name = args.target.split(":")
+        try:
+            module = importlib.import_module(module_name)
+        except ModuleNotFoundError as e:
+            if e.name and e.name.startswith("thinfilm") and signals.received() is None:
+                print(f"thinfilm: error: '{args.command}' is not available in this version", file=sys.stderr)
+                return 2
+            raise
         return int(getattr(module, func_name)(args) or 0)
-    except UserError as e:
-        print(f"thinfilm: error: {e}", file=sys.stderr)
-        return 2
+    except SystemExit:
+        raise
     except KeyboardInterrupt:
-        print("thinfilm: interrupted", file=sys.stderr)
-        return 130
+        return _interrupted(signals.received())
+    except signals.Terminated as e:
+        return _interrupted(e.signum)
+    except UserError as e:
+        if signals.received() is not None:
+            return _interrupted(signals.received())
+        print(f"thinfilm: error: {_one_line(e)}", file=sys.stderr)
+        return 2
+    except BrokenPipeError:
+        # the reader of our output went away (``thinfilm methods | head -1``): not an error
+        import os
+
+        with contextlib.suppress(OSError, ValueError):
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
+    except MemoryError:
+        print("thinfilm: error: out of memory: the inputs ask for more than this machine has (a smaller "
+              "resolution, fewer bands or a narrower range)", file=sys.stderr)
+        return 2
+    except Exception as e:
+        if signals.received() is not None:
+            # A library turned the interrupt into an error of its own (an import cut short).
+            return _interrupted(signals.received())
+        if _debug():
+            raise
+        what = f"{type(e).__name__}: {e}" if str(e) else type(e).__name__
+        print(f"thinfilm: error: unexpected failure ({_one_line(what, 300)}); nothing was written. "
+              f"This is a bug in thinfilm: please report it (THINFILM_DEBUG=1 shows the traceback)",
+              file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":  # pragma: no cover

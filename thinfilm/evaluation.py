@@ -32,6 +32,7 @@ Outputs: ``metrics.json`` (exactly the keys of ``DESIGN.md``), ``evaluation.json
 
 from __future__ import annotations
 
+import math
 import time
 from pathlib import Path
 
@@ -236,10 +237,18 @@ def rerender_estimate(meta: dict, estimate, film, progress=False) -> dict:
 
 # -- the evaluate command -------------------------------------------------------------------
 
+#: how far from 1 the length of an estimated normal may be (float32 files hold ~1e-7)
+UNIT_TOLERANCE = 1e-3
+#: the largest film thickness an estimate may hold (nm)
+MAX_THICKNESS_NM = 1e5
+
+
 def check_estimate(estimate, shape, estimate_path) -> None:
     """Stop with one line when an :class:`~thinfilm.core.io.Estimate` does not fit the
-    dataset: image size, a missing or invalid ``film_ior`` or ``substrate_ior`` in
-    ``estimate.json``, NaN or zero normals at valid pixels."""
+    dataset or is not a plausible estimate: image size, a missing or invalid ``film_ior``
+    or ``substrate_ior`` in ``estimate.json``, no valid pixel, and at valid pixels NaN,
+    zero or non-unit normals (``|‖n‖ - 1| >`` :data:`UNIT_TOLERANCE`), normals facing away
+    from the camera (n_z <= 0), negative thickness."""
     exr = Path(estimate_path) / "estimate.exr"
     js = Path(estimate_path) / "estimate.json"
     got = tuple(estimate.valid.shape)
@@ -249,10 +258,11 @@ def check_estimate(estimate, shape, estimate_path) -> None:
     if estimate.film_ior is None:
         raise UserError(f"{js}: missing field 'film_ior'")
     sub = estimate.substrate_ior
-    if sub is not None and (isinstance(sub, bool) or not isinstance(sub, (int, float)) or not sub > 0):
+    if sub is not None and (isinstance(sub, bool) or not isinstance(sub, (int, float))
+                            or not (math.isfinite(sub) and sub > 0)):
         raise UserError(f"{js}: field 'substrate_ior' must be a positive number, got {sub!r}")
     fi = estimate.film_ior
-    if isinstance(fi, (int, float)) and not isinstance(fi, bool) and not fi > 0:
+    if isinstance(fi, (int, float)) and not isinstance(fi, bool) and not (math.isfinite(fi) and fi > 0):
         raise UserError(f"{js}: field 'film_ior' must be positive, got {fi!r}")
     valid = estimate.valid
     for name, arr in (("normal", estimate.normals), ("thickness", estimate.thickness_nm)):
@@ -260,9 +270,28 @@ def check_estimate(estimate, shape, estimate_path) -> None:
         if bad.any():
             raise UserError(f"{exr}: channel '{name}' is NaN or infinite at {int(bad.sum())} pixels "
                             f"marked valid")
-    nz = np.linalg.norm(estimate.normals, axis=-1)
-    if valid.any() and np.any(nz[valid] < 1e-6):
+    if not valid.any():
+        raise UserError(f"{exr}: channel 'valid' marks no pixel; there is nothing to evaluate")
+    normals = np.asarray(estimate.normals, dtype=np.float64)[valid]
+    length = np.linalg.norm(normals, axis=-1)
+    if np.any(length < 1e-6):
         raise UserError(f"{exr}: channels 'normal.X/Y/Z' are zero at pixels marked valid")
+    off = np.abs(length - 1.0) > UNIT_TOLERANCE
+    if off.any():
+        worst = float(length[np.argmax(np.abs(length - 1.0))])
+        raise UserError(f"{exr}: channels 'normal.X/Y/Z' are not unit vectors at {int(off.sum())} pixels "
+                        f"marked valid (length {worst:.4g}); expected |n| = 1")
+    away = normals[:, 2] <= 0
+    if away.any():
+        raise UserError(f"{exr}: channel 'normal.Z' is <= 0 at {int(away.sum())} pixels marked valid; "
+                        f"visible normals face the camera (n_z > 0)")
+    thickness = np.asarray(estimate.thickness_nm, dtype=np.float64)[valid]
+    if np.any(thickness < 0):
+        raise UserError(f"{exr}: channel 'thickness' is negative at {int((thickness < 0).sum())} pixels "
+                        f"marked valid (min {thickness.min():g} nm); expected a thickness in nm >= 0")
+    if np.any(thickness > MAX_THICKNESS_NM):
+        raise UserError(f"{exr}: channel 'thickness' exceeds {MAX_THICKNESS_NM:g} nm at pixels marked "
+                        f"valid (max {thickness.max():g}); expected a thickness in nm")
 
 
 def estimated_film(dataset, estimate, estimate_path):
@@ -278,24 +307,33 @@ def estimated_film(dataset, estimate, estimate_path):
         sub = estimate.substrate_ior if estimate.substrate_ior is not None else dataset.meta.get("substrate_ior")
         if sub is None:
             raise UserError(f"{js}: no 'substrate_ior', and the dataset's meta.json has none") from None
-        return Film.single(index, None, sub, where=str(js))
+        film = Film.single(index, None, sub, where=str(js))
+        _check_indices(film, js, estimate, dataset.path / "meta.json")
+        return film
     film = film.with_index(index)
     if estimate.substrate_ior is not None and abs(estimate.substrate_ior - film.effective_substrate_index()) > 1e-12:
         film = film.with_substrate(estimate.substrate_ior)
+    _check_indices(film, js, estimate, dataset.path / "meta.json")
     return film
 
 
-def evaluate(dataset_path, estimate_path, out=None, progress=False, figures=True) -> dict:
-    """Re-render an estimate, compute the metrics, and (with ``out``) write the evaluation
-    folder atomically. Needs a mono polarized Mitsuba variant set by the caller
-    (:data:`RENDER_VARIANT`).
+#: refractive indices (real part) the re-rendering accepts, as the scene specs do
+INDEX_RANGE = (0.01, 100.0)
 
-    Returns
-    -------
-    dict with ``metrics`` (the ``metrics.json`` content), ``info`` (the ``evaluation.json``
-    content), ``maps`` (per-pixel error images), ``mask``, ``rendered``, ``captured`` and
-    the ``dataset`` and ``estimate``.
-    """
+
+def _check_indices(film, estimate_json, estimate, meta_json) -> None:
+    lo, hi = INDEX_RANGE
+    n2, n3 = film.effective_index(), film.effective_substrate_index()
+    if not lo <= n2 <= hi:
+        raise UserError(f"{estimate_json}: field 'film_ior' must be a refractive index from {lo:g} to {hi:g}, "
+                        f"got {n2:g}")
+    if not lo <= n3 <= hi:
+        where = (f"{estimate_json}: field 'substrate_ior'" if estimate.substrate_ior is not None
+                 else f"{meta_json}: the substrate index")
+        raise UserError(f"{where} must be a refractive index from {lo:g} to {hi:g}, got {n3:g}")
+
+
+def _evaluate(dataset_path, estimate_path, progress=False) -> dict:
     from thinfilm.core.colorimetry import DEFAULT_CAMERA, DEFAULT_ILLUMINANT
     from thinfilm.core.io import read_dataset, read_estimate
 
@@ -317,6 +355,9 @@ def evaluate(dataset_path, estimate_path, out=None, progress=False, figures=True
     have_gt = bool(ds.ground_truth)
     valid = estimate.valid
     mask = (ds.ground_truth["mask"] & valid) if have_gt else valid.copy()
+    if not mask.any():
+        raise UserError(f"{Path(estimate_path) / 'estimate.exr'}: no pixel marked valid lies on the object "
+                        f"of {ds.path / 'ground_truth.exr'} ('mask'); there is nothing to score")
 
     t_render = time.perf_counter()
     rendered = rerender_estimate(meta, estimate, film, progress=progress)
@@ -382,25 +423,52 @@ def evaluate(dataset_path, estimate_path, out=None, progress=False, figures=True
               "lab_captured": app["lab_captured"], "lab_rendered": app["lab_rendered"],
               "dataset": ds, "estimate": estimate}
     info_out["timings_s"]["metrics_total"] = round(time.perf_counter() - t0, 3)
-    if out is not None:
-        write_evaluation(out, result, figures=figures)
     return result
 
 
-def write_evaluation(out, result: dict, figures=True) -> Path:
-    """Write ``metrics.json``, ``evaluation.json``, ``rerendered.exr``, ``errors.exr`` and
-    figures into ``out`` atomically."""
-    from thinfilm.core.io import write_evaluation_files
+def evaluate(dataset_path, estimate_path, out=None, progress=False, figures=True) -> dict:
+    """Re-render an estimate, compute the metrics, and (with ``out``) write the evaluation
+    folder atomically, holding its lock while the work runs. Needs a mono polarized Mitsuba
+    variant set by the caller (:data:`RENDER_VARIANT`).
+
+    ``out`` may not be, contain or lie inside the dataset or the estimate
+    (:func:`thinfilm.core.outputs.check_output_dir`).
+
+    Returns
+    -------
+    dict with ``metrics`` (the ``metrics.json`` content), ``info`` (the ``evaluation.json``
+    content), ``maps`` (per-pixel error images), ``mask``, ``rendered``, ``captured`` and
+    the ``dataset`` and ``estimate``.
+    """
+    if out is None:
+        return _evaluate(dataset_path, estimate_path, progress=progress)
     from thinfilm.core.outputs import atomic_output_dir
 
-    with atomic_output_dir(out) as tmp:
-        rendered = result["rendered"]
-        write_evaluation_files(tmp, result["metrics"], result["info"], rendered["polarized_rgb"],
-                               rendered["spectral_s"], result["maps"], result["mask"])
-        if figures:
-            from . import figures as fig
+    with atomic_output_dir(out, command="evaluate", inputs=[dataset_path, estimate_path]) as tmp:
+        result = _evaluate(dataset_path, estimate_path, progress=progress)
+        _write_evaluation_files(tmp, result, figures)
+    return result
 
-            fig.write_evaluation_figures(tmp, result)
+
+def _write_evaluation_files(folder, result: dict, figures: bool) -> None:
+    from thinfilm.core.io import write_evaluation_files
+
+    rendered = result["rendered"]
+    write_evaluation_files(folder, result["metrics"], result["info"], rendered["polarized_rgb"],
+                           rendered["spectral_s"], result["maps"], result["mask"])
+    if figures:
+        from . import figures as fig
+
+        fig.write_evaluation_figures(folder, result)
+
+
+def write_evaluation(out, result: dict, figures=True, inputs=()) -> Path:
+    """Write ``metrics.json``, ``evaluation.json``, ``rerendered.exr``, ``errors.exr`` and
+    figures of an :func:`evaluate` result into ``out`` atomically."""
+    from thinfilm.core.outputs import atomic_output_dir
+
+    with atomic_output_dir(out, command="evaluate", inputs=inputs) as tmp:
+        _write_evaluation_files(tmp, result, figures)
     return Path(out)
 
 
@@ -410,6 +478,9 @@ def cli_main(args) -> int:
 
     from thinfilm.core.variants import use_variant
 
+    from thinfilm.core.outputs import check_output_dir
+
+    check_output_dir(args.out, command="evaluate", inputs=[args.dataset, args.estimate])
     use_variant()
     result = evaluate(args.dataset, args.estimate, args.out, progress=sys.stderr.isatty())
     m = result["metrics"]
@@ -418,8 +489,8 @@ def cli_main(args) -> int:
         v = m[key]["mean"]
         return "n/a" if v is None else f"{v:.3g}{unit}"
 
-    print(f"normal error {fmt('normal_error_deg', ' deg')}, thickness error {fmt('thickness_error_nm', ' nm')}, "
-          f"mean dE*ab {fmt('delta_e_ab')}, dE00 {fmt('delta_e_2000')}, spectral RMSE {fmt('spectral_rmse')}, "
-          f"film index error {m['film_ior_error'] if m['film_ior_error'] is None else round(m['film_ior_error'], 4)}"
-          f" -> {Path(args.out) / 'metrics.json'}")
+    print(f"wrote {Path(args.out) / 'metrics.json'} (normal error {fmt('normal_error_deg', ' deg')}, "
+          f"thickness error {fmt('thickness_error_nm', ' nm')}, mean dE*ab {fmt('delta_e_ab')}, "
+          f"dE00 {fmt('delta_e_2000')}, spectral RMSE {fmt('spectral_rmse')}, film index error "
+          f"{m['film_ior_error'] if m['film_ior_error'] is None else round(m['film_ior_error'], 4)})")
     return 0

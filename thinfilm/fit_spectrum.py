@@ -183,6 +183,9 @@ def parse_index(text, option="--film-ior", allow_cauchy=True):
         if coef[0] <= 0:
             raise UserError(f"{option}: the Cauchy constant A must be positive, got {coef[0]:g}")
         coef += [0.0] * (3 - len(coef))
+        if not (INDEX_RANGE[0] <= coef[0] <= INDEX_RANGE[1] and abs(coef[1]) <= 1e7 and abs(coef[2]) <= 1e12):
+            raise UserError(f"{option}: expected Cauchy constants with A from {INDEX_RANGE[0]:g} to "
+                            f"{INDEX_RANGE[1]:g}, |B| <= 1e7 nm² and |C| <= 1e12 nm⁴, got {text!r}")
         # the shipped Cauchy model takes λ in µm: B nm² = B·1e-6 µm², C nm⁴ = C·1e-12 µm⁴
         return as_dispersion({"cauchy": [coef[0], coef[1] * 1e-6, coef[2] * 1e-12]})
     try:
@@ -196,7 +199,16 @@ def parse_index(text, option="--film-ior", allow_cauchy=True):
         return as_dispersion(text)
     if not math.isfinite(value) or value <= 0:
         raise UserError(f"{option}: the refractive index must be a positive number, got {text}")
+    if not INDEX_RANGE[0] <= value <= INDEX_RANGE[1]:
+        raise UserError(f"{option}: the refractive index must be from {INDEX_RANGE[0]:g} to {INDEX_RANGE[1]:g}, "
+                        f"got {text}")
     return as_dispersion(value)
+
+
+#: refractive indices accepted, as in scene specs
+INDEX_RANGE = (0.01, 100.0)
+#: the thickest film searched (nm), as in scene specs
+MAX_THICKNESS_NM = 1e5
 
 
 # ---------------------------------------------------------------------------
@@ -212,8 +224,8 @@ def _check_options(args):
     film = parse_index(args.film_ior, "--film-ior")
     substrate = parse_index(args.substrate_ior, "--substrate-ior", allow_cauchy=False)
     k3 = args.substrate_k
-    if k3 is not None and not (math.isfinite(k3) and k3 >= 0):
-        raise UserError(f"--substrate-k: the extinction must be a number >= 0, got {k3:g}")
+    if k3 is not None and not (math.isfinite(k3) and 0 <= k3 <= 100):
+        raise UserError(f"--substrate-k: the extinction must be a number from 0 to 100, got {k3:g}")
     angle = float(args.angle)
     if not (math.isfinite(angle) and 0.0 <= angle < 90.0):
         raise UserError(f"--angle: the angle of incidence must be in [0, 90) degrees, got {angle:g}")
@@ -228,6 +240,8 @@ def _check_options(args):
         lo, hi = args.thickness_range
         if not (math.isfinite(lo) and math.isfinite(hi) and 0 <= lo < hi):
             raise UserError(f"--thickness-range: expected MIN MAX with 0 <= MIN < MAX nm, got {lo:g} {hi:g}")
+        if hi > MAX_THICKNESS_NM:
+            raise UserError(f"--thickness-range: MAX must be at most {MAX_THICKNESS_NM:g} nm, got {hi:g}")
         d_range = (lo, hi)
     return FilmModel(film, substrate, k3, angle), lam_range, d_range
 

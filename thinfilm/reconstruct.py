@@ -82,7 +82,16 @@ def reconstruct(kind: str, dataset_path, method=None, film_ior=None, substrate_i
     mask = read_mask_file(mask_path, ds.shape) if mask_path is not None else None
     t_read = time.perf_counter() - t0
     options = registry.Options(film=film, mask=mask, thickness_range_nm=thickness_range_nm, progress=progress)
-    est = registry.run(m, ds, options)
+    try:
+        est = registry.run(m, ds, options)
+    except (UserError, MemoryError):
+        raise
+    except Exception as e:
+        if str(getattr(m.function, "__module__", "")).startswith("thinfilm."):
+            raise  # a bug of ours: reported as one
+        # a method from elsewhere (an installed plugin, package.module:function) that failed
+        reason = " ".join(f"{type(e).__name__}: {e}".split())[:300]
+        raise UserError(f"--method {m.name}: the method failed ({reason})") from None
     est.info["timings_s"] = {"read": t_read, **est.info.get("timings_s", {})}
     est.info["timings_s"]["total"] = time.perf_counter() - t0
     return est, m
@@ -96,12 +105,14 @@ def cli_main(args) -> int:
     from thinfilm.core.outputs import atomic_output_dir, check_output_dir
 
     t0 = time.perf_counter()
-    out = check_output_dir(args.out)
-    est, method = reconstruct(args.kind, args.dataset, getattr(args, "method", None), getattr(args, "film_ior", None),
-                      getattr(args, "substrate_ior", None), getattr(args, "thickness_range", None),
-                      getattr(args, "mask", None), progress=sys.stderr.isatty())
-    t = time.perf_counter()
-    with atomic_output_dir(out) as tmp:
+    inputs = [args.dataset, getattr(args, "mask", None)]
+    out = check_output_dir(args.out, command="reconstruct", inputs=inputs)
+    with atomic_output_dir(out, command="reconstruct", inputs=inputs) as tmp:
+        est, method = reconstruct(args.kind, args.dataset, getattr(args, "method", None),
+                                  getattr(args, "film_ior", None), getattr(args, "substrate_ior", None),
+                                  getattr(args, "thickness_range", None), getattr(args, "mask", None),
+                                  progress=sys.stderr.isatty())
+        t = time.perf_counter()
         write_estimate(tmp, est)
         # estimate.json again, last, so that it holds the time of the writing too
         est.info["timings_s"]["write"] = time.perf_counter() - t

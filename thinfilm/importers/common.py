@@ -12,7 +12,7 @@ import numpy as np
 from thinfilm.core.errors import ThinfilmWarning, UserError
 
 __all__ = ["DEFAULT_WAVELENGTHS", "parse_numbers", "parse_angles", "parse_wavelengths", "read_spectrum_csv",
-           "reference_reflectance", "file_record", "film_fields", "import_meta", "warn_relative_units"]
+           "reference_reflectance", "file_record", "film_fields", "import_meta", "warn_relative_units", "input_files"]
 
 #: The wavelength grid of the camera model when none is given (the generator's default bands).
 DEFAULT_WAVELENGTHS = "400:720:4"
@@ -177,3 +177,17 @@ def import_meta(kind: str, inputs: list, units: str, calibration: dict, **fields
 
     return dataset_meta(source="imported", imported_as=kind, imported_from=inputs, units=units,
                         calibration=calibration, **fields)
+
+
+def input_files(*items) -> list:
+    """The arguments that name existing files (images, cubes, references, CSVs): an output
+    may not be, contain or lie inside any of them (:mod:`thinfilm.core.outputs`). Levels
+    and names that are not files are left out."""
+    out = []
+    for item in items:
+        if item is None or isinstance(item, (int, float)):
+            continue
+        path = Path(str(item)).expanduser()
+        if path.exists():
+            out.append(path)
+    return out

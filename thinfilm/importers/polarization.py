@@ -50,7 +50,7 @@ import numpy as np
 
 from thinfilm.core.errors import ThinfilmWarning, UserError
 
-from .common import (DEFAULT_WAVELENGTHS, file_record, film_fields, import_meta, parse_angles, parse_numbers,
+from .common import (DEFAULT_WAVELENGTHS, file_record, film_fields, import_meta, input_files, parse_angles, parse_numbers,
                      parse_wavelengths, reference_reflectance, warn_relative_units)
 from .images import apply_bit_depth, read_image
 
@@ -244,110 +244,111 @@ def import_polarization(images, out, layout, angles=None, pattern=None, bit_dept
     wl = parse_wavelengths(wavelengths or DEFAULT_WAVELENGTHS)
     camera, illuminant = _colour_model(camera, illuminant, wl)
     meta_film = film_fields(film_ior, substrate_ior)
-    out = check_output_dir(out)
+    in_files = input_files(*images, dark, flat, white_reference, white_reflectance, camera, illuminant)
+    out = check_output_dir(out, command="import polarization", inputs=in_files)
+    # the lock of --out is held from here to the end: a second writer stops at once
+    with atomic_output_dir(out, command="import polarization", inputs=in_files) as tmp:
+        imgs = _read_inputs([Path(p) for p in images], layout, bit_depth)
+        first = imgs[0]
+        shape = first.data.shape
+        hw = shape[:2]
+        if layout == "dofp-rgb":
+            P, Q = pat.shape
+            if hw[0] < 2 * P or hw[1] < 2 * Q:
+                raise UserError(f"{first.path}: a {hw[0]}x{hw[1]} mosaic is smaller than two periods of the pattern")
+            colour_map, angle_map = pat.maps(hw)
+            index_map = colour_map * 1000 + angle_map
+        else:
+            colour_map = np.broadcast_to(np.arange(3), shape)
+            index_map = colour_map
+        cal = _Calibration(first.bits, shape, dark, flat, saturation, index_map, first.is_float)
 
-    imgs = _read_inputs([Path(p) for p in images], layout, bit_depth)
-    first = imgs[0]
-    shape = first.data.shape
-    hw = shape[:2]
-    if layout == "dofp-rgb":
-        P, Q = pat.shape
-        if hw[0] < 2 * P or hw[1] < 2 * Q:
-            raise UserError(f"{first.path}: a {hw[0]}x{hw[1]} mosaic is smaller than two periods of the pattern")
-        colour_map, angle_map = pat.maps(hw)
-        index_map = colour_map * 1000 + angle_map
-    else:
-        colour_map = np.broadcast_to(np.arange(3), shape)
-        index_map = colour_map
-    cal = _Calibration(first.bits, shape, dark, flat, saturation, index_map, first.is_float)
+        # 1-4: saturation, dark, normalization, flat field
+        calibrated, saturated = [], np.zeros(shape, dtype=bool)
+        for img in imgs:
+            sat, x = cal.apply(img.data)
+            saturated |= sat
+            calibrated.append(x)
 
-    # 1-4: saturation, dark, normalization, flat field
-    calibrated, saturated = [], np.zeros(shape, dtype=bool)
-    for img in imgs:
-        sat, x = cal.apply(img.data)
-        saturated |= sat
-        calibrated.append(x)
+        # 5: gains to reflectance units
+        inputs = [file_record(img.path, "capture") for img in imgs]
+        inputs += [r for r in (cal.dark_record, cal.flat_record) if isinstance(r, dict)]
+        calib = cal.record()
+        if white_balance is not None:
+            gains = np.asarray(parse_numbers(white_balance, "--white-balance", 3))
+            if np.any(gains <= 0):
+                raise UserError(f"--white-balance: gains must be > 0, got {white_balance!r}")
+            units = "reflectance"
+            calib["white_balance"] = gains.tolist()
+        elif white_reference is not None:
+            ref = cal._read(white_reference, "--white-reference image")
+            inputs.append(file_record(ref.path, "white reference"))
+            sat, x = cal.apply(ref.data)
+            rho = reference_reflectance(white_reflectance, "--white-reflectance", wl)
+            rho_rgb = spectra_to_camera_rgb(rho, wl, camera or DEFAULT_CAMERA, illuminant or DEFAULT_ILLUMINANT)
+            medians = []
+            for c in range(3):
+                sel = (colour_map == c) & ~sat
+                if cal.bad_flat is not None:
+                    sel &= ~cal.bad_flat
+                if not sel.any():
+                    raise UserError(f"{ref.path}: the --white-reference image is saturated everywhere in "
+                                    f"{'RGB'[c]}")
+                medians.append(float(np.median(x[sel])))
+            medians = np.asarray(medians)
+            if np.any(medians <= 0):
+                raise UserError(f"{ref.path}: the --white-reference image is at or below the dark level in "
+                                f"{'RGB'[int(np.argmin(medians))]}")
+            gains = 0.5 * rho_rgb / medians
+            units = "reflectance"
+            calib["white_reference"] = {"reflectance": str(white_reflectance), "reflectance_rgb": rho_rgb.tolist(),
+                                        "median_normalized": medians.tolist(), "behind_polarizer": True}
+            calib["white_balance"] = gains.tolist()
+        else:
+            gains = np.ones(3)
+            units = "relative"
+            warn_relative_units("polarizer images")
+        frame = np.mean(calibrated, axis=0) if layout == "dofp-rgb" else None
 
-    # 5: gains to reflectance units
-    inputs = [file_record(img.path, "capture") for img in imgs]
-    inputs += [r for r in (cal.dark_record, cal.flat_record) if isinstance(r, dict)]
-    calib = cal.record()
-    if white_balance is not None:
-        gains = np.asarray(parse_numbers(white_balance, "--white-balance", 3))
-        if np.any(gains <= 0):
-            raise UserError(f"--white-balance: gains must be > 0, got {white_balance!r}")
-        units = "reflectance"
-        calib["white_balance"] = gains.tolist()
-    elif white_reference is not None:
-        ref = cal._read(white_reference, "--white-reference image")
-        inputs.append(file_record(ref.path, "white reference"))
-        sat, x = cal.apply(ref.data)
-        rho = reference_reflectance(white_reflectance, "--white-reflectance", wl)
-        rho_rgb = spectra_to_camera_rgb(rho, wl, camera or DEFAULT_CAMERA, illuminant or DEFAULT_ILLUMINANT)
-        medians = []
-        for c in range(3):
-            sel = (colour_map == c) & ~sat
+        # demosaic / assemble, and the pixels that can be trusted
+        if layout == "dofp-rgb":
+            from .demosaic import demosaic, edge_pixels, footprint
+
+            frame = frame * gains[colour_map]
+            polarized = demosaic(frame, pat)
+            bad_samples = saturated | (cal.bad_flat if cal.bad_flat is not None else False)
+            bad = footprint(bad_samples, pat)
+            n_sat = int(footprint(saturated, pat).sum())
+            edges = np.zeros(hw, dtype=bool) if keep_edges else edge_pixels(frame, pat)
+            valid = ~bad & ~edges
+            layout_info = {"layout": layout, "pattern": pat.text, "pattern_period": pat.diagram().split("\n"),
+                           "frames": len(imgs), "edge_pixels": int(edges.sum()),
+                           "edges": "kept" if keep_edges else "pixels whose interpolation crosses the object's "
+                                                              "silhouette are marked invalid"}
+        else:
+            polarized = {a: x * gains for a, x in zip(angle_list, calibrated)}
+            bad = saturated.any(axis=-1)
             if cal.bad_flat is not None:
-                sel &= ~cal.bad_flat
-            if not sel.any():
-                raise UserError(f"{ref.path}: the --white-reference image is saturated everywhere in "
-                                f"{'RGB'[c]}")
-            medians.append(float(np.median(x[sel])))
-        medians = np.asarray(medians)
-        if np.any(medians <= 0):
-            raise UserError(f"{ref.path}: the --white-reference image is at or below the dark level in "
-                            f"{'RGB'[int(np.argmin(medians))]}")
-        gains = 0.5 * rho_rgb / medians
-        units = "reflectance"
-        calib["white_reference"] = {"reflectance": str(white_reflectance), "reflectance_rgb": rho_rgb.tolist(),
-                                    "median_normalized": medians.tolist(), "behind_polarizer": True}
-        calib["white_balance"] = gains.tolist()
-    else:
-        gains = np.ones(3)
-        units = "relative"
-        warn_relative_units("polarizer images")
-    frame = np.mean(calibrated, axis=0) if layout == "dofp-rgb" else None
+                bad |= cal.bad_flat.any(axis=-1)
+            n_sat = int(saturated.any(axis=-1).sum())
+            valid = ~bad
+            layout_info = {"layout": layout, "files_angles_deg": dict(zip([img.path.name for img in imgs], angle_list))}
+        if not valid.any():
+            raise UserError(f"{first.path}: no pixel is usable (saturated or at the flat field's dark level everywhere)")
 
-    # demosaic / assemble, and the pixels that can be trusted
-    if layout == "dofp-rgb":
-        from .demosaic import demosaic, edge_pixels, footprint
-
-        frame = frame * gains[colour_map]
-        polarized = demosaic(frame, pat)
-        bad_samples = saturated | (cal.bad_flat if cal.bad_flat is not None else False)
-        bad = footprint(bad_samples, pat)
-        n_sat = int(footprint(saturated, pat).sum())
-        edges = np.zeros(hw, dtype=bool) if keep_edges else edge_pixels(frame, pat)
-        valid = ~bad & ~edges
-        layout_info = {"layout": layout, "pattern": pat.text, "pattern_period": pat.diagram().split("\n"),
-                       "frames": len(imgs), "edge_pixels": int(edges.sum()),
-                       "edges": "kept" if keep_edges else "pixels whose interpolation crosses the object's "
-                                                          "silhouette are marked invalid"}
-    else:
-        polarized = {a: x * gains for a, x in zip(angle_list, calibrated)}
-        bad = saturated.any(axis=-1)
-        if cal.bad_flat is not None:
-            bad |= cal.bad_flat.any(axis=-1)
-        n_sat = int(saturated.any(axis=-1).sum())
-        valid = ~bad
-        layout_info = {"layout": layout, "files_angles_deg": dict(zip([img.path.name for img in imgs], angle_list))}
-    if not valid.any():
-        raise UserError(f"{first.path}: no pixel is usable (saturated or at the flat field's dark level everywhere)")
-
-    fields = dict(
-        wavelengths_nm=[float(v) for v in wl],
-        polarizer_angles_deg=sorted(int(a) for a in angle_list),
-        **({"camera": camera} if camera else {}),
-        **({"illuminant": illuminant} if illuminant else {}),
-        **meta_film,
-        **({"projection": {"pixel_size": float(pixel_size)}} if pixel_size is not None else {}),
-        sensor=layout_info,
-        saturated_pixels=n_sat,
-        valid_pixels=int(valid.sum()),
-    )
-    meta = import_meta("polarization", inputs, units, calib, **fields)
-    images32 = {int(a) % 360: np.asarray(img, dtype=np.float32) for a, img in polarized.items()}
-    with atomic_output_dir(out) as tmp:
+        fields = dict(
+            wavelengths_nm=[float(v) for v in wl],
+            polarizer_angles_deg=sorted(int(a) for a in angle_list),
+            **({"camera": camera} if camera else {}),
+            **({"illuminant": illuminant} if illuminant else {}),
+            **meta_film,
+            **({"projection": {"pixel_size": float(pixel_size)}} if pixel_size is not None else {}),
+            sensor=layout_info,
+            saturated_pixels=n_sat,
+            valid_pixels=int(valid.sum()),
+        )
+        meta = import_meta("polarization", inputs, units, calib, **fields)
+        images32 = {int(a) % 360: np.asarray(img, dtype=np.float32) for a, img in polarized.items()}
         write_dataset(tmp, meta, polarized_rgb=images32, valid=valid)
     return {"path": out, "shape": hw, "angles": sorted(images32), "valid_pixels": int(valid.sum()),
             "saturated_pixels": n_sat, "units": units, "meta": meta, "valid": valid, "images": images32}

@@ -37,7 +37,7 @@ import numpy as np
 
 from thinfilm.core.errors import UserError
 
-from .common import (file_record, film_fields, import_meta, parse_angles, parse_numbers, parse_wavelengths,
+from .common import (file_record, film_fields, import_meta, input_files, parse_angles, parse_numbers, parse_wavelengths,
                      read_spectrum_csv, reference_reflectance, warn_relative_units)
 
 __all__ = ["POLARIZERS", "read_cube", "import_spectral", "cli_main"]
@@ -197,101 +197,102 @@ def import_spectral(cubes, out, wavelengths=None, white=None, dark=None, white_r
     if pixel_size is not None and not (np.isfinite(pixel_size) and pixel_size > 0):
         raise UserError(f"--pixel-size: expected a number > 0, got {pixel_size}")
     meta_film = film_fields(film_ior, substrate_ior)
-    out = check_output_dir(out)
-
-    read = [read_cube(c) for c in cubes]
-    first = read[0]
-    for cube in read[1:]:
-        if cube.data.shape != first.data.shape:
-            raise UserError(f"{cube.path}: shape {cube.data.shape} differs from {first.path.name}'s {first.data.shape}")
-    bands = first.data.shape[2]
-    if wavelengths is not None:
-        wl = parse_wavelengths(wavelengths)
-        if wl.size != bands:
-            raise UserError(f"--wavelengths: {wl.size} wavelengths for {bands} bands in {first.path}")
-        order = np.arange(bands)
-    else:
-        if first.wavelengths is None:
-            raise UserError(f"{first.path}: no wavelengths (an ENVI header without 'wavelength', or a TIFF); "
-                            f"give --wavelengths")
+    in_files = input_files(*cubes, white, dark, white_reflectance)
+    out = check_output_dir(out, command="import spectral", inputs=in_files)
+    # the lock of --out is held from here to the end: a second writer stops at once
+    with atomic_output_dir(out, command="import spectral", inputs=in_files) as tmp:
+        read = [read_cube(c) for c in cubes]
+        first = read[0]
         for cube in read[1:]:
-            if cube.wavelengths is None or not np.allclose(cube.wavelengths, first.wavelengths):
-                raise UserError(f"{cube.path}: its wavelengths differ from {first.path.name}'s")
-        wl = first.wavelengths
-        if wl.size != bands:
-            raise UserError(f"{first.path}: the header lists {wl.size} wavelengths for {bands} bands")
-        order = np.argsort(wl)
-        wl = wl[order]
-        if not np.all(np.isfinite(wl)) or np.any(wl <= 0) or np.any(np.diff(wl) <= 0):
-            raise UserError(f"{first.path}: the header's wavelengths must be distinct positive numbers")
-    data = [c.data[..., order] for c in read]
-    shape = data[0].shape
-
-    if saturation is not None:
-        sat_level = parse_numbers(saturation, "--saturation", 1)[0]
-    else:
-        sat_level = first.int_max
-    saturated = np.zeros(shape[:2], dtype=bool)
-    if sat_level is not None:
-        for d in data:
-            saturated |= np.any(d >= sat_level, axis=-1)
-
-    inputs = [file_record(c.path, "cube") for c in read]
-    calib = {"saturation_level": sat_level}
-    d_ref, calib["dark"] = (0.0, None) if dark is None else _reference(dark, "--dark", shape, wl, order)
-    if isinstance(calib["dark"], dict):
-        inputs.append(calib["dark"])
-    bad = np.zeros(shape[:2], dtype=bool)
-    if white is not None:
-        w_ref, rec = _reference(white, "--white", shape, wl, order)
-        inputs.append(rec)
-        calib["white"] = rec
-        span = w_ref - d_ref
-        if np.ndim(span) == 1:
-            if np.any(span <= 0):
-                raise UserError(f"--white: the white reference is not above the dark level at "
-                                f"{wl[int(np.argmin(span))]:g} nm")
+            if cube.data.shape != first.data.shape:
+                raise UserError(f"{cube.path}: shape {cube.data.shape} differs from {first.path.name}'s {first.data.shape}")
+        bands = first.data.shape[2]
+        if wavelengths is not None:
+            wl = parse_wavelengths(wavelengths)
+            if wl.size != bands:
+                raise UserError(f"--wavelengths: {wl.size} wavelengths for {bands} bands in {first.path}")
+            order = np.arange(bands)
         else:
-            low = np.any(span <= 0, axis=-1)
-            if low.all():
-                raise UserError("--white: the white reference is not above the dark level anywhere")
-            bad |= low
-            span = np.where(span > 0, span, 1.0)
-        rho = reference_reflectance(white_reflectance, "--white-reflectance", wl)
-        calib["white_reflectance"] = str(white_reflectance)
-        scale = rho / span
-        units = "reflectance"
-    else:
-        scale = 1.0
-        units = "relative"
-        warn_relative_units("spectra")
-    calibrated = [(d - d_ref) * scale for d in data]
+            if first.wavelengths is None:
+                raise UserError(f"{first.path}: no wavelengths (an ENVI header without 'wavelength', or a TIFF); "
+                                f"give --wavelengths")
+            for cube in read[1:]:
+                if cube.wavelengths is None or not np.allclose(cube.wavelengths, first.wavelengths):
+                    raise UserError(f"{cube.path}: its wavelengths differ from {first.path.name}'s")
+            wl = first.wavelengths
+            if wl.size != bands:
+                raise UserError(f"{first.path}: the header lists {wl.size} wavelengths for {bands} bands")
+            order = np.argsort(wl)
+            wl = wl[order]
+            if not np.all(np.isfinite(wl)) or np.any(wl <= 0) or np.any(np.diff(wl) <= 0):
+                raise UserError(f"{first.path}: the header's wavelengths must be distinct positive numbers")
+        data = [c.data[..., order] for c in read]
+        shape = data[0].shape
 
-    stokes = None
-    if polarizer == "s":
-        spectral_s = calibrated[0]
-    else:
-        intensity = 0.5 * np.stack(calibrated)          # behind each polarizer, reflectance units
-        S0, S1, S2 = fit_stokes(intensity, angle_list)
-        stokes = {"S0": S0, "S1": S1, "S2": S2}
-        spectral_s = s_polarized(S0, S1, S2)
-    valid = ~saturated & ~bad
-    if not valid.any():
-        raise UserError(f"{first.path}: no pixel is usable (saturated, or white not above dark, everywhere)")
+        if saturation is not None:
+            sat_level = parse_numbers(saturation, "--saturation", 1)[0]
+        else:
+            sat_level = first.int_max
+        saturated = np.zeros(shape[:2], dtype=bool)
+        if sat_level is not None:
+            for d in data:
+                saturated |= np.any(d >= sat_level, axis=-1)
 
-    fwhm = band_fwhm if band_fwhm is not None else first.fwhm
-    fields = dict(
-        wavelengths_nm=[float(v) for v in wl],
-        **({"band_fwhm_nm": float(fwhm)} if fwhm is not None else {}),
-        polarizer=polarizer,
-        **({"cube_polarizer_angles_deg": [int(a) for a in angle_list]} if angle_list else {}),
-        **meta_film,
-        **({"projection": {"pixel_size": float(pixel_size)}} if pixel_size is not None else {}),
-        saturated_pixels=int(saturated.sum()),
-        valid_pixels=int(valid.sum()),
-    )
-    meta = import_meta("spectral", inputs, units, calib, **fields)
-    with atomic_output_dir(out) as tmp:
+        inputs = [file_record(c.path, "cube") for c in read]
+        calib = {"saturation_level": sat_level}
+        d_ref, calib["dark"] = (0.0, None) if dark is None else _reference(dark, "--dark", shape, wl, order)
+        if isinstance(calib["dark"], dict):
+            inputs.append(calib["dark"])
+        bad = np.zeros(shape[:2], dtype=bool)
+        if white is not None:
+            w_ref, rec = _reference(white, "--white", shape, wl, order)
+            inputs.append(rec)
+            calib["white"] = rec
+            span = w_ref - d_ref
+            if np.ndim(span) == 1:
+                if np.any(span <= 0):
+                    raise UserError(f"--white: the white reference is not above the dark level at "
+                                    f"{wl[int(np.argmin(span))]:g} nm")
+            else:
+                low = np.any(span <= 0, axis=-1)
+                if low.all():
+                    raise UserError("--white: the white reference is not above the dark level anywhere")
+                bad |= low
+                span = np.where(span > 0, span, 1.0)
+            rho = reference_reflectance(white_reflectance, "--white-reflectance", wl)
+            calib["white_reflectance"] = str(white_reflectance)
+            scale = rho / span
+            units = "reflectance"
+        else:
+            scale = 1.0
+            units = "relative"
+            warn_relative_units("spectra")
+        calibrated = [(d - d_ref) * scale for d in data]
+
+        stokes = None
+        if polarizer == "s":
+            spectral_s = calibrated[0]
+        else:
+            intensity = 0.5 * np.stack(calibrated)          # behind each polarizer, reflectance units
+            S0, S1, S2 = fit_stokes(intensity, angle_list)
+            stokes = {"S0": S0, "S1": S1, "S2": S2}
+            spectral_s = s_polarized(S0, S1, S2)
+        valid = ~saturated & ~bad
+        if not valid.any():
+            raise UserError(f"{first.path}: no pixel is usable (saturated, or white not above dark, everywhere)")
+
+        fwhm = band_fwhm if band_fwhm is not None else first.fwhm
+        fields = dict(
+            wavelengths_nm=[float(v) for v in wl],
+            **({"band_fwhm_nm": float(fwhm)} if fwhm is not None else {}),
+            polarizer=polarizer,
+            **({"cube_polarizer_angles_deg": [int(a) for a in angle_list]} if angle_list else {}),
+            **meta_film,
+            **({"projection": {"pixel_size": float(pixel_size)}} if pixel_size is not None else {}),
+            saturated_pixels=int(saturated.sum()),
+            valid_pixels=int(valid.sum()),
+        )
+        meta = import_meta("spectral", inputs, units, calib, **fields)
         write_dataset(tmp, meta, spectral_s=np.asarray(spectral_s, dtype=np.float32),
                       stokes=None if stokes is None else {k: np.asarray(v, dtype=np.float32) for k, v in stokes.items()},
                       valid=valid)
