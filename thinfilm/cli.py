@@ -38,6 +38,23 @@ def _positive_int(text):
     return value
 
 
+def _workers(text):
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
+    return value
+
+
+def _add_cluster_arguments(p) -> None:
+    p.add_argument("--workers", type=_workers, default=None, metavar="N",
+                   help="local Dask worker processes (default: one per core; 0: every task in this process)")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="use an existing Dask cluster: tcp://HOST:PORT or a scheduler file")
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(
         prog="thinfilm",
@@ -100,8 +117,18 @@ def build_parser() -> argparse.ArgumentParser:
 
     _add_import_parsers(sub)
 
-    b = sub.add_parser("benchmark", help="every preset x every method, with a report")
-    b.add_argument("--quick", action="store_true", help="small images, under 10 minutes on 2 cores")
+    b = sub.add_parser("benchmark", help="every scene of a suite x every method, scored, with a report")
+    b.add_argument("--suite", default=None, metavar="NAME|FILE",
+                   help="a shipped suite (presets, the default; standard) or a suite .toml file")
+    b.add_argument("--quick", action="store_true", help="small images (at most 128 px; presets: about a minute)")
+    b.add_argument("--methods", default=None, metavar="A,B,...",
+                   help="methods to run: names, aliases or package.module:function (default: the suite's, "
+                        "else every registered method)")
+    b.add_argument("--resolution", type=_positive_int, default=None, metavar="N", help="every scene at N x N pixels")
+    b.add_argument("--resume", action="store_true", help="keep the finished tasks of an earlier run into --out")
+    b.add_argument("--baseline", default=None, metavar="OLD/results.json",
+                   help="compare with an earlier run: print what got worse, exit 1 on any regression")
+    _add_cluster_arguments(b)
     b.add_argument("--out", required=True)
     b.set_defaults(target="thinfilm.benchmark:cli_main")
 
