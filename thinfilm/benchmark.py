@@ -204,21 +204,6 @@ def _task_key(spec_toml, kind, method, source, version) -> str:
 
 # -- tasks (run on Dask workers, or in this process) -----------------------------------------------
 
-def _generate_task(spec, folder: str) -> dict:
-    """Generate the dataset of a case into ``folder`` (written atomically)."""
-    from thinfilm.core.variants import use_variant
-    from thinfilm.generators.generate import generate_dataset
-
-    t0 = time.perf_counter()
-    try:
-        use_variant()
-        generate_dataset(spec, folder, progress=False)
-    except Exception as e:
-        return {"status": "failed", "error": f"{type(e).__name__}: {e}".splitlines()[0],
-                "traceback": traceback.format_exc(limit=6)}
-    return {"status": "ok", "generate_s": round(time.perf_counter() - t0, 2)}
-
-
 def run_method(kind: str, dataset: Path, out: Path, method: str) -> None:
     """Reconstruct ``dataset`` with registered ``method`` of ``kind`` into the folder ``out``."""
     from thinfilm.core.io import write_estimate
@@ -358,7 +343,7 @@ def run_benchmark(out, suite="presets", quick=False, methods=None, resolution=No
         An earlier ``results.json`` content: the comparison goes into ``results["gate"]``
         and the report (:func:`thinfilm.gate.compare`).
     """
-    from thinfilm.cluster import Dep, Task, executor, run_tasks
+    from thinfilm.cluster import Dep, Task, executor, generate_task, run_tasks
     from thinfilm.core.io import write_json
 
     t_start = time.perf_counter()
@@ -389,7 +374,7 @@ def run_benchmark(out, suite="presets", quick=False, methods=None, resolution=No
             generated[case.id] = {"status": "ok", "resumed": True}
             dep = {"status": "ok"}
         else:
-            graph.append(Task(gen_key, _generate_task, (case.spec, str(folder)), label=f"generate {case.id}"))
+            graph.append(Task(gen_key, generate_task, (case.spec, str(folder)), label=f"generate {case.id}"))
             dep = Dep(gen_key)
         for t in todo:
             m = t["method"]

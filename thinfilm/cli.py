@@ -74,14 +74,19 @@ def build_parser() -> argparse.ArgumentParser:
                    help="PNG brightness: 'auto' (99.5th percentile to 90%%) or a gain (the EXR stays linear)")
     r.set_defaults(target="thinfilm.render:cli_main")
 
-    g = sub.add_parser("generate", help="generate a benchmark dataset from a scene spec or preset")
-    g.add_argument("spec", metavar="SPEC.toml|PRESET")
+    g = sub.add_parser("generate", help="generate a benchmark dataset from a scene spec or preset, or a sweep of them")
+    g.add_argument("spec", metavar="SPEC.toml|PRESET", nargs="?", default=None)
     g.add_argument("--out", required=True)
     g.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a spec key, e.g. --set film.thickness.value=450 (repeatable)")
     g.add_argument("--resolution", type=_positive_int, default=None)
-    g.add_argument("--seed", type=int, default=None)
-    g.set_defaults(target="thinfilm.generators.generate:cli_main")
+    g.add_argument("--seed", type=int, default=None, help="noise seed; with --sweep, the sweep's seed")
+    g.add_argument("--sweep", default=None, metavar="SWEEP.toml",
+                   help="a scene spec whose values may be distributions: write --count datasets DIR/NNNN and DIR/index.csv")
+    g.add_argument("--count", type=_positive_int, default=None, metavar="N", help="with --sweep: number of datasets")
+    g.add_argument("--resume", action="store_true", help="with --sweep: keep the datasets already in --out")
+    _add_cluster_arguments(g)
+    g.set_defaults(target="thinfilm.sweep:generate_main")
 
     rec = sub.add_parser("reconstruct", help="estimate normals, film index and thickness from a dataset")
     rsub = rec.add_subparsers(dest="kind", metavar="KIND")

@@ -30,7 +30,7 @@ from pathlib import Path
 
 from thinfilm.core.errors import UserError
 
-__all__ = ["Dep", "Task", "Executor", "default_workers", "executor", "run_tasks"]
+__all__ = ["Dep", "Task", "Executor", "default_workers", "executor", "run_tasks", "generate_task"]
 
 
 @dataclass(frozen=True)
@@ -197,6 +197,24 @@ def run_tasks(tasks, ex: Executor, on_result=None, progress: bool = False, desc:
         return results
     finally:
         bar.close()
+
+
+def generate_task(spec, folder: str) -> dict:
+    """The task that generates one dataset: ``spec`` (a
+    :class:`~thinfilm.generators.spec.SceneSpec`) into ``folder`` (written atomically).
+    Returns ``{"status": "ok", "generate_s": ...}`` or the failure."""
+    import time
+
+    from thinfilm.core.variants import use_variant
+    from thinfilm.generators.generate import generate_dataset
+
+    t0 = time.perf_counter()
+    try:
+        use_variant()
+        generate_dataset(spec, folder, progress=False)
+    except Exception as e:
+        return _failure(e)
+    return {"status": "ok", "generate_s": round(time.perf_counter() - t0, 2)}
 
 
 def _failure(e: BaseException) -> dict:
