@@ -136,6 +136,19 @@ def select_methods(names=None, kinds=("rgb", "spectral")) -> dict:
     return {k: [m for m in found if m.kind == k] for k in kinds}
 
 
+def _method_refs(names) -> dict:
+    """``{(kind, method name): what a worker resolves it by}``: the name, or the
+    ``package.module:function`` path it was given as (a worker has no record of it)."""
+    from thinfilm.core import registry
+
+    refs = {}
+    for name in names or ():
+        if ":" in name:
+            for m in registry.resolve([name]):
+                refs[(m.kind, m.name)] = name
+    return refs
+
+
 def _safe(name: str) -> str:
     """A method name as a folder name (``package.module:function`` → ``package.module_function``)."""
     return "".join(c if c.isalnum() or c in "._-" else "_" for c in name)
@@ -174,6 +187,7 @@ def plan_benchmark(suite, quick=False, methods=None, resolution=None) -> dict:
     names = methods if methods is not None else suite.methods
     kinds_needed = [k for k in ("rgb", "spectral") if any(k in c.kinds for c in cases)]
     chosen = select_methods(names, kinds_needed)
+    refs = _method_refs(names)
     missing = {}
     if names is None:
         missing = {k: "no method registered" for k in kinds_needed if not chosen[k]}
@@ -190,6 +204,7 @@ def plan_benchmark(suite, quick=False, methods=None, resolution=None) -> dict:
             for m in chosen.get(kind, []):
                 label = f"{kind}-{_safe(m.name)}"
                 tasks.append({"case": case, "kind": kind, "method": m, "label": label,
+                              "ref": refs.get((kind, m.name), m.name),
                               "folder": f"tasks/{case.id}/{label}",
                               "key": _task_key(spec_toml, kind, m.name, m.source, __version__)})
     return {"suite": suite, "cases": cases, "methods": chosen, "missing_kinds": missing, "tasks": tasks,
@@ -239,15 +254,16 @@ def _evaluate(dataset: Path, estimate: Path, out: Path) -> dict:
 
 
 def _method_task(generated: dict, root: str, case_id: str, kind: str, method: str, role: str, source: str,
-                 folder: str, key: str) -> dict:
-    """Reconstruct and score one case with one method (``method`` None: the ground truth) into
+                 folder: str, key: str, name: str | None = None) -> dict:
+    """Reconstruct and score one case with one method (``method``: a registry name or
+    ``package.module:function``, None for the ground truth; ``name``: its registry name) into
     ``root/folder`` (written atomically, ``task.json`` last). Returns the result row."""
     from thinfilm.core.io import write_json
     from thinfilm.core.outputs import atomic_output_dir
 
     root = Path(root)
     dataset = root / "datasets" / case_id
-    row = {"scene": case_id, "kind": kind, "method": method or "ground truth",
+    row = {"scene": case_id, "kind": kind, "method": name or method or "ground truth",
            "role": role, "source": source, "task": folder,
            "estimate": f"{folder}/estimate", "evaluation": f"{folder}/evaluation"}
     if generated.get("status") != "ok":
@@ -379,9 +395,9 @@ def run_benchmark(out, suite="presets", quick=False, methods=None, resolution=No
         for t in todo:
             m = t["method"]
             graph.append(Task(t["folder"], _method_task,
-                              (dep, str(root), case.id, t["kind"], None if m is None else m.name,
+                              (dep, str(root), case.id, t["kind"], None if m is None else t["ref"],
                                "noise floor" if m is None else m.role, "thinfilm" if m is None else m.source,
-                               t["folder"], t["key"]),
+                               t["folder"], t["key"], None if m is None else m.name),
                               label=f"{case.id}: {t['label']}"))
 
     n_cases = len({t.key for t in graph if t.key.startswith("generate/")})
