@@ -103,14 +103,16 @@ def main(argv=None) -> int:
         rate = {w: 60 * args.count / med[w] for w in counts}
         print()
         for w in counts:
-            c = statistics.median(cpu[w])
             print(f"{w} worker{'s' if w > 1 else ''}: median {med[w]:.2f} s for {args.count} datasets, "
-                  f"{rate[w]:.1f} scenes/min ({med[w] / args.count:.2f} s per dataset); median CPU "
-                  f"{c:.2f} s per dataset in a worker, so {60 * w / c:.1f} scenes/min with {w} idle "
-                  f"core{'s' if w > 1 else ''}")
+                  f"{rate[w]:.1f} scenes/min ({med[w] / args.count:.2f} s per dataset); median CPU time "
+                  f"{statistics.median(cpu[w]):.2f} s per dataset (all threads of its worker)")
         if len(counts) > 1:
             base, top = counts[0], counts[-1]
             ratio = rate[top] / rate[base]
+            c = statistics.median(cpu[top])
+            if ex.drjit_threads == 1:  # one core per worker: what idle cores would give
+                print(f"{top} single-threaded workers at {c:.2f} CPU s per dataset: {60 * top / c:.1f} scenes/min "
+                      f"on {top} idle cores")
             print(f"scaling {base} -> {top} workers: x{ratio:.2f} "
                   f"(goal >= 1.8: {'met' if ratio >= 1.8 else 'missed'}); "
                   f"{top} workers: {rate[top]:.1f} scenes/min (goal >= 60: {'met' if rate[top] >= 60 else 'missed'})")
