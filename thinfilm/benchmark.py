@@ -43,7 +43,6 @@ is 1 when a task failed or a reconstruction kind has no method.
 
 from __future__ import annotations
 
-import argparse
 import hashlib
 import json
 import os
@@ -110,7 +109,6 @@ PAPER_FIGURES = {
         "normal_error_deg": None, "delta_e_ab": 3.33, "thickness_error_nm": 45.0,
         "film_ior_error": 0.04, "spectral_rmse_pct": "~2"},
 }
-
 
 
 # -- methods -------------------------------------------------------------------------------------
@@ -664,7 +662,7 @@ def write_report(results: dict) -> str:
     lines += [f"| total | {results['timings_s'].get('total')} |"]
     lines += [f"| generate {sc['id']} | {sc['generate_s']} |" for sc in results.get("scenes", [])
               if sc.get("generate_s") is not None]
-    lines += [f"| reconstruct+evaluate {r['scene']}/{r['kind']}-{r['method']} | "
+    lines += [f"| reconstruct+evaluate {r['scene']}/{r['method'] if r['kind'] == '-' else r['kind'] + '-' + r['method']} | "
               f"{(r.get('reconstruct_s') or 0) + (r.get('evaluate_s') or 0):.1f} |" for r in rows
               if "error" not in r and not r.get("resumed")]
     lines.append("")
