@@ -159,15 +159,17 @@ def test_resume_skips_finished_tasks_and_reruns_the_others(tiny_run, tmp_path):
     task_json.write_text(json.dumps(data))
     shutil.rmtree(out / "tasks" / "pyr" / "ground-truth")
     again = benchmark.run_benchmark(out, suite=_tiny(tmp_path), methods=["coherent", "paper"], workers=0,
-                                    resume=True, progress=False)
+                                    resume=True, progress=False, figures=False)
     resumed = {r["method"]: bool(r.get("resumed")) for r in again["rows"]}
     assert resumed == {"ground truth": False, "kobayashi2023": True, "coherent": False}
     assert dataset.stat().st_mtime_ns == stamp  # the dataset was kept
     assert [r["metrics"] for r in again["rows"]] == [r["metrics"] for r in first["rows"]]
     assert again["execution"]["tasks_run"] == 2 and again["execution"]["datasets_generated"] == 0
     # without --resume the folder is replaced by a new run
-    fresh = benchmark.run_benchmark(out, suite=_tiny(tmp_path), methods=["paper"], workers=0, progress=False)
+    fresh = benchmark.run_benchmark(out, suite=_tiny(tmp_path), methods=["paper"], workers=0, progress=False,
+                                    figures=False)
     assert not any(r.get("resumed") for r in fresh["rows"])
+    assert not list(out.glob("tasks/*/*/evaluation/*.png")) and "## Figures" not in (out / "report.md").read_text()
     assert not (out / "tasks" / "pyr" / "rgb-coherent").exists()
 
 
@@ -179,7 +181,7 @@ def test_failures_are_rows_with_a_section_and_exit_1(tiny_run, tmp_path, capsys,
         "@estimator('broken', kind='rgb', needs=('polarized_rgb',))\n"
         "def broken(dataset, options):\n    raise RuntimeError('boom')\n")
     code = main(["benchmark", "--suite", str(_tiny(tmp_path)), "--methods", "broken_estimator:broken",
-                 "--workers", "0", "--out", str(tmp_path / "out")])
+                 "--workers", "0", "--no-figures", "--out", str(tmp_path / "out")])
     assert code == 1
     assert "failed: pyr rgb broken: RuntimeError: boom" in capsys.readouterr().err
     report = (tmp_path / "out" / "report.md").read_text()

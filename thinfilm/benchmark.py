@@ -3,7 +3,7 @@
 ::
 
     thinfilm benchmark [--suite NAME|FILE] [--quick] [--methods a,b,...] [--resolution N]
-                       [--resume] [--baseline OLD/results.json]
+                       [--resume] [--baseline OLD/results.json] [--no-figures]
                        [--workers N | --scheduler ADDRESS] --out DIR
 
 A *suite* (:mod:`thinfilm.suites`) lists scenes (a preset or a spec file, overrides, seeds,
@@ -240,19 +240,19 @@ def _ground_truth_estimate(dataset: Path, out: Path) -> None:
         write_estimate(tmp, est)
 
 
-def _evaluate(dataset: Path, estimate: Path, out: Path) -> dict:
+def _evaluate(dataset: Path, estimate: Path, out: Path, figures: bool = True) -> dict:
     from thinfilm.core.variants import use_variant
 
     from . import evaluation
 
     use_variant()  # the evaluation re-renders in the generator's variant
-    r = evaluation.evaluate(dataset, estimate, out)
+    r = evaluation.evaluate(dataset, estimate, out, figures=figures)
     return {"metrics": r["metrics"], "coverage": r["info"]["coverage"],
             "film_ior_estimated": r["info"]["film_ior_estimated"]}
 
 
 def _method_task(generated: dict, root: str, case_id: str, kind: str, method: str, role: str, source: str,
-                 folder: str, key: str, name: str | None = None) -> dict:
+                 folder: str, key: str, name: str | None = None, figures: bool = True) -> dict:
     """Reconstruct and score one case with one method (``method``: a registry name or
     ``package.module:function``, None for the ground truth; ``name``: its registry name) into
     ``root/folder`` (written atomically, ``task.json`` last). Returns the result row."""
@@ -263,7 +263,7 @@ def _method_task(generated: dict, root: str, case_id: str, kind: str, method: st
     dataset = root / "datasets" / case_id
     row = {"scene": case_id, "kind": kind, "method": name or method or "ground truth",
            "role": role, "source": source, "task": folder,
-           "estimate": f"{folder}/estimate", "evaluation": f"{folder}/evaluation"}
+           "estimate": f"{folder}/estimate", "evaluation": f"{folder}/evaluation", "figures": bool(figures)}
     if generated.get("status") != "ok":
         row.update(status="failed", error=f"dataset not generated: {generated.get('error')}",
                    traceback=generated.get("traceback", ""))
@@ -277,7 +277,7 @@ def _method_task(generated: dict, root: str, case_id: str, kind: str, method: st
                 run_method(kind, dataset, tmp / "estimate", method)
             row["reconstruct_s"] = round(time.perf_counter() - t0, 2)
             t0 = time.perf_counter()
-            row.update(_evaluate(dataset, tmp / "estimate", tmp / "evaluation"))
+            row.update(_evaluate(dataset, tmp / "estimate", tmp / "evaluation", figures))
             row["evaluate_s"] = round(time.perf_counter() - t0, 2)
             row["status"] = "ok"
         except Exception as e:  # one failing method must not hide the others
@@ -339,7 +339,7 @@ def _write_text(path: Path, text: str) -> None:
 # -- the run -------------------------------------------------------------------------------------
 
 def run_benchmark(out, suite="presets", quick=False, methods=None, resolution=None, resume=False,
-                  workers=0, scheduler=None, progress=True, baseline=None) -> dict:
+                  workers=0, scheduler=None, progress=True, baseline=None, figures=True) -> dict:
     """Run a benchmark into ``out`` and return its results (the ``results.json`` content).
 
     Parameters
@@ -356,6 +356,8 @@ def run_benchmark(out, suite="presets", quick=False, methods=None, resolution=No
     baseline : dict, optional
         An earlier ``results.json`` content: the comparison goes into ``results["gate"]``
         and the report (:func:`thinfilm.gate.compare`).
+    figures : bool
+        Write each evaluation's PNG figures (about 2 s a task) and show them in the report.
     """
     from thinfilm.cluster import Dep, Task, executor, generate_task, run_tasks
     from thinfilm.core.io import write_json
@@ -395,7 +397,7 @@ def run_benchmark(out, suite="presets", quick=False, methods=None, resolution=No
             graph.append(Task(t["folder"], _method_task,
                               (dep, str(root), case.id, t["kind"], None if m is None else t["ref"],
                                "noise floor" if m is None else m.role, "thinfilm" if m is None else m.source,
-                               t["folder"], t["key"], None if m is None else m.name),
+                               t["folder"], t["key"], None if m is None else m.name, figures),
                               label=f"{case.id}: {t['label']}"))
 
     n_cases = len({t.key for t in graph if t.key.startswith("generate/")})
@@ -637,9 +639,10 @@ def write_report(results: dict) -> str:
                 f"{pair('delta_e_ab')} | {pair('spectral_rmse', scale=100.0, paper_key='spectral_rmse_pct')} |")
     lines.append("")
 
-    lines += ["## Figures", ""]
+    if any("error" not in r and r.get("figures") is not False for r in rows):
+        lines += ["## Figures", ""]
     for r in rows:
-        if "error" in r:
+        if "error" in r or r.get("figures") is False:
             continue
         ev = r["evaluation"]
         lines += [f"### {r['scene']} — {r['method']} ({r['kind']}, {r['role']})", ""]
@@ -702,7 +705,7 @@ def cli_main(args) -> int:
                             methods=_method_list(getattr(args, "methods", None)),
                             resolution=getattr(args, "resolution", None), resume=getattr(args, "resume", False),
                             workers=workers, scheduler=scheduler, progress=sys.stderr.isatty(),
-                            baseline=baseline)
+                            baseline=baseline, figures=not getattr(args, "no_figures", False))
     rows = results["rows"]
     failed = [r for r in rows if "error" in r]
     ex = results["execution"]

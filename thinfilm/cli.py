@@ -133,6 +133,8 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--resume", action="store_true", help="keep the finished tasks of an earlier run into --out")
     b.add_argument("--baseline", default=None, metavar="OLD/results.json",
                    help="compare with an earlier run: print what got worse, exit 1 on any regression")
+    b.add_argument("--no-figures", action="store_true",
+                   help="no PNG figures per task (faster for large suites; the report has the tables only)")
     _add_cluster_arguments(b)
     b.add_argument("--out", required=True)
     b.set_defaults(target="thinfilm.benchmark:cli_main")
