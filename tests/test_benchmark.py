@@ -89,6 +89,15 @@ def test_unknown_method_is_one_line_error(tmp_path, capsys):
     assert not (tmp_path / "out").exists()
 
 
+def test_workers_and_scheduler_exclude_each_other(tmp_path, capsys):
+    assert main(["benchmark", "--workers", "2", "--scheduler", "tcp://127.0.0.1:1", "--out",
+                 str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--workers and --scheduler" in err
+    assert main(["benchmark", "--workers", "-1", "--out", str(tmp_path / "out")]) == 2
+    assert "--workers" in capsys.readouterr().err
+
+
 def test_plan_has_every_method_of_any_role_and_source():
     from thinfilm.core import registry
 

@@ -103,7 +103,12 @@ def executor(workers: int | None = None, scheduler: str | None = None, max_worke
         except OSError as e:
             raise UserError(f"--scheduler {scheduler}: cannot connect ({e})") from None
         try:
-            n = len(client.scheduler_info().get("workers", {}))
+            try:
+                client.wait_for_workers(1, timeout=60)
+            except TimeoutError:
+                raise UserError(f"--scheduler {scheduler}: no worker joined the cluster within 60 s "
+                                f"(start some with 'dask worker ADDRESS')") from None
+            n = len(client.scheduler_info(n_workers=-1).get("workers", {}))
             yield Executor(client, n, scheduler)
         finally:
             client.close()
