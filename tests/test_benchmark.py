@@ -94,8 +94,9 @@ def test_workers_and_scheduler_exclude_each_other(tmp_path, capsys):
                  str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "--workers and --scheduler" in err
-    assert main(["benchmark", "--workers", "-1", "--out", str(tmp_path / "out")]) == 2
-    assert "--workers" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as e:  # a usage error
+        main(["benchmark", "--workers", "-1", "--out", str(tmp_path / "out")])
+    assert e.value.code == 2 and "--workers" in capsys.readouterr().err
 
 
 def test_plan_has_every_method_of_any_role_and_source():
