@@ -62,6 +62,9 @@ API for commands
     replaces one file atomically. The marker's ``entries`` are updated before each part is
     renamed into place, so an interrupted run never leaves a part the next run would
     mistake for someone else's files.
+``staging_path(part)`` and ``folder.adopt("tasks/0003", staged)``
+    A part written by another process (a Dask worker) at ``staging_path`` is moved into place
+    by the process that holds the folder.
 ``with atomic_output_files([stem.exr, stem.png], overwrite=..., inputs=...) as tmp_paths:``
     Files rather than a folder (``render``): ``tmp_paths[path]`` is where to write each;
     all are renamed into place together at the end.
@@ -123,7 +126,7 @@ __all__ = [
 MARKER = ".thinfilm-output"
 MARKER_FORMAT = "thinfilm-output/1"
 
-_TEMP_RE = re.compile(r"^\.(?P<name>.+)\.(?P<kind>tmp|old)-(?P<pid>\d+)@(?P<host>[A-Za-z0-9-]{1,32})-"
+_TEMP_RE = re.compile(r"^\.(?P<name>.+)\.(?P<kind>tmp|old|stage)-(?P<pid>\d+)@(?P<host>[A-Za-z0-9-]{1,32})-"
                       r"(?P<rand>[A-Za-z0-9_]{8})(?P<ext>\.[A-Za-z0-9]{1,8})?$")
 
 
@@ -193,6 +196,16 @@ def _tree(root: Path) -> set:
 def _is_stale_temporary(path: Path) -> bool:
     m = _TEMP_RE.match(path.name)
     return bool(m) and m["host"] == _host() and not _pid_alive(int(m["pid"]))
+
+
+def _in_stale_temporary(root: Path, rel: str) -> bool:
+    """Whether ``rel`` (below ``root``) is, or lies inside, a stale temporary."""
+    path = root
+    for part in Path(rel).parts:
+        path = path / part
+        if _is_stale_temporary(path):
+            return True
+    return False
 
 
 def _overlap(out: Path, inputs) -> str | None:
@@ -370,7 +383,7 @@ def _check_ours(out: Path, command, what: str = "--out") -> None:
         raise UserError(f"{what} {out}: holds the output of {_cmd(marker.get('command'))}, not of "
                         f"{_cmd(command)}; refusing to replace it")
     known = set(marker["entries"])
-    foreign = sorted(e for e in _tree(out) if e not in known and not _is_stale_temporary(out / e))
+    foreign = sorted(e for e in _tree(out) if e not in known and not _in_stale_temporary(out, e))
     if foreign:
         more = f" and {len(foreign) - 1} more" if len(foreign) > 1 else ""
         raise UserError(f"{what} {out}: holds '{foreign[0].rstrip('/')}'{more}, which thinfilm did not "
@@ -625,6 +638,24 @@ class OutputFolder:
             _rmtree(tmp)
             raise
 
+    def adopt(self, rel, staged) -> Path:
+        """Move folder ``staged`` into place as part ``rel`` in one step, the marker listing
+        its contents. ``staged`` was written elsewhere, by another process (a Dask worker), at
+        :func:`staging_path` of the part: until it is adopted it is a temporary folder that
+        the stale-temporary cleanup removes once its process is gone."""
+        rel = self._rel(rel)
+        staged = Path(staged)
+        try:
+            target = self._prepare_parent(rel)
+            os.chmod(staged, _dir_mode())
+            inside = _tree(staged) | ({MARKER} if (staged / MARKER).is_file() else set())  # its own marker too
+            self._entries |= {rel + "/"} | {f"{rel}/{e}" for e in inside}
+            _write_marker(self.path, self.command, self._entries)
+            _swap_into_place(staged, target)
+        except OSError as e:
+            raise UserError(f"--out {self.path}: cannot write the output ({_reason(e)})") from None
+        return target
+
     def write_bytes(self, rel, data: bytes) -> Path:
         """Replace file ``rel`` atomically (a temporary file renamed over it)."""
         rel = self._rel(rel)
@@ -648,6 +679,15 @@ class OutputFolder:
     def write_text(self, rel, text: str) -> Path:
         """Replace text file ``rel`` atomically (UTF-8)."""
         return self.write_bytes(rel, text.encode("utf-8"))
+
+
+def staging_path(target) -> Path:
+    """A fresh temporary path beside ``target`` (nothing is created), named in this module's
+    pattern: another process writes a part there (e.g. ``atomic_output_dir(staging_path(t))``)
+    for :meth:`OutputFolder.adopt` to move into place; if that process dies first, the
+    stale-temporary cleanup removes it."""
+    target = Path(target)
+    return target.parent / _temp_name(target.name, kind="stage")
 
 
 @contextlib.contextmanager

@@ -90,6 +90,23 @@ MAX_SPP = 2**20
 MAX_SEED = 2**32 - 1
 
 
+def _workers(text):
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
+    return value
+
+
+def _add_cluster_arguments(p) -> None:
+    p.add_argument("--workers", type=_workers, default=None, metavar="N",
+                   help="local Dask worker processes (default: one per core; 0: every task in this process)")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="use an existing Dask cluster: tcp://HOST:PORT or a scheduler file")
+
+
 def build_parser() -> argparse.ArgumentParser:
     from .generators.spec_schema import LIMITS
 
@@ -115,15 +132,21 @@ def build_parser() -> argparse.ArgumentParser:
                    help="PNG brightness: 'auto' (99.5th percentile to 90%%) or a gain (the EXR stays linear)")
     r.set_defaults(target="thinfilm.render:cli_main")
 
-    g = sub.add_parser("generate", help="generate a benchmark dataset from a scene spec or preset")
-    g.add_argument("spec", metavar="SPEC.toml|PRESET")
+    g = sub.add_parser("generate", help="generate a benchmark dataset from a scene spec or preset, or a sweep of them")
+    g.add_argument("spec", metavar="SPEC.toml|PRESET", nargs="?", default=None)
     g.add_argument("--out", required=True)
     g.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a spec key, e.g. --set film.thickness.value=450 (repeatable)")
     g.add_argument("--resolution", type=_bounded_int(*LIMITS["resolution"]), default=None,
                    help="image width and height in pixels (%d to %d)" % LIMITS["resolution"])
-    g.add_argument("--seed", type=int, default=None, help="overrides the spec's seed (0 to 2^32 - 1)")
-    g.set_defaults(target="thinfilm.generators.generate:cli_main")
+    g.add_argument("--seed", type=int, default=None,
+                   help="overrides the spec's seed (0 to 2^32 - 1); with --sweep, the sweep's seed")
+    g.add_argument("--sweep", default=None, metavar="SWEEP.toml",
+                   help="a scene spec whose values may be distributions: write --count datasets DIR/NNNN and DIR/index.csv")
+    g.add_argument("--count", type=_positive_int, default=None, metavar="N", help="with --sweep: number of datasets")
+    g.add_argument("--resume", action="store_true", help="with --sweep: keep the datasets already in --out")
+    _add_cluster_arguments(g)
+    g.set_defaults(target="thinfilm.sweep:generate_main")
 
     rec = sub.add_parser("reconstruct", help="estimate normals, film index and thickness from a dataset")
     rsub = rec.add_subparsers(dest="kind", metavar="KIND")
@@ -159,8 +182,20 @@ def build_parser() -> argparse.ArgumentParser:
 
     _add_import_parsers(sub)
 
-    b = sub.add_parser("benchmark", help="every preset x every method, with a report")
-    b.add_argument("--quick", action="store_true", help="small images, under 10 minutes on 2 cores")
+    b = sub.add_parser("benchmark", help="every scene of a suite x every method, scored, with a report")
+    b.add_argument("--suite", default=None, metavar="NAME|FILE",
+                   help="a shipped suite (presets, the default; standard) or a suite .toml file")
+    b.add_argument("--quick", action="store_true", help="small images (at most 128 px; presets: about a minute)")
+    b.add_argument("--methods", default=None, metavar="A,B,...",
+                   help="methods to run: names, aliases or package.module:function (default: the suite's, "
+                        "else every registered method)")
+    b.add_argument("--resolution", type=_positive_int, default=None, metavar="N", help="every scene at N x N pixels")
+    b.add_argument("--resume", action="store_true", help="keep the finished tasks of an earlier run into --out")
+    b.add_argument("--baseline", default=None, metavar="OLD/results.json",
+                   help="compare with an earlier run: print what got worse, exit 1 on any regression")
+    b.add_argument("--no-figures", action="store_true",
+                   help="no PNG figures per task (faster for large suites; the report has the tables only)")
+    _add_cluster_arguments(b)
     b.add_argument("--out", required=True)
     b.set_defaults(target="thinfilm.benchmark:cli_main")
 

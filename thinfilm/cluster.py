@@ -1,0 +1,230 @@
+"""Running a graph of tasks: in this process, on a local Dask cluster, or on an existing one.
+
+``thinfilm benchmark`` and ``thinfilm generate --sweep`` describe their work as
+:class:`Task` objects (a function, its arguments, the tasks it depends on) and hand them to
+:func:`run_tasks` with an executor from :func:`executor`:
+
+* ``workers=0``: every task in this process, one after another, in the order given (no Dask);
+* ``workers=N`` (default: the number of cores): a local Dask cluster
+  (``distributed.LocalCluster``) of N worker processes with one task thread each, so each
+  process holds one Mitsuba; Dr.Jit's thread pool in each worker is set to
+  ``max(1, cores // N)`` so that the workers together use no more threads than cores;
+* ``scheduler=ADDRESS`` (``tcp://host:port``, or the JSON file of
+  ``dask scheduler --scheduler-file``): an existing cluster (``dask scheduler`` and
+  ``dask worker``); its workers need ``thinfilm`` importable and the output folder on a
+  shared file system. Their Dr.Jit threads are left as the workers have them.
+
+Each task function sets the Mitsuba variant it needs itself (workers start with none), and
+writes its own output folder; what it returns (a small dict) comes back to the caller. The
+result of a task never depends on where it ran: a task is a pure function of its arguments.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import sys
+import uuid
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from thinfilm.core.errors import UserError
+
+__all__ = ["Dep", "Task", "Executor", "default_workers", "executor", "run_tasks", "generate_task"]
+
+
+@dataclass(frozen=True)
+class Dep:
+    """Stands for the result of the task named ``key`` among another task's arguments."""
+
+    key: str
+
+
+@dataclass
+class Task:
+    """``function(*args)``, where any :class:`Dep` argument is replaced by that task's result."""
+
+    key: str
+    function: object
+    args: tuple = ()
+    label: str = field(default="", compare=False)
+
+
+def default_workers() -> int:
+    """The number of cores this process may use."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - not Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def _in_worker(function, drjit_threads, *args):
+    """Run ``function(*args)`` on a worker, with Dr.Jit's thread pool sized first."""
+    if drjit_threads:
+        import drjit as dr
+
+        if dr.thread_count() != drjit_threads:
+            dr.set_thread_count(drjit_threads)
+    return function(*args)
+
+
+@dataclass
+class Executor:
+    """Where tasks run: ``client`` is a ``distributed.Client``, or None for this process."""
+
+    client: object = None
+    workers: int = 0
+    address: str | None = None
+    drjit_threads: int | None = None
+
+    def describe(self) -> dict:
+        if self.client is None:
+            return {"mode": "in-process", "workers": 0}
+        if self.address is not None:
+            return {"mode": "scheduler", "workers": self.workers}
+        return {"mode": "local-cluster", "workers": self.workers, "drjit_threads": self.drjit_threads}
+
+
+@contextlib.contextmanager
+def executor(workers: int | None = None, scheduler: str | None = None, max_workers: int | None = None):
+    """Yield an :class:`Executor` (see the module docstring); the local cluster, or the
+    connection, is closed on exit.
+
+    ``max_workers`` caps a local cluster (no point starting more workers than tasks)."""
+    if scheduler is not None:
+        from distributed import Client
+
+        path = Path(scheduler).expanduser()
+        try:
+            if path.is_file():
+                client = Client(scheduler_file=str(path), timeout="20s")
+            else:
+                client = Client(scheduler, timeout="20s")
+        except OSError as e:
+            raise UserError(f"--scheduler {scheduler}: cannot connect ({e})") from None
+        try:
+            try:
+                client.wait_for_workers(1, timeout=60)
+            except TimeoutError:
+                raise UserError(f"--scheduler {scheduler}: no worker joined the cluster within 60 s "
+                                f"(start some with 'dask worker ADDRESS')") from None
+            n = len(client.scheduler_info(n_workers=-1).get("workers", {}))
+            yield Executor(client, n, scheduler)
+        finally:
+            client.close()
+        return
+    n = default_workers() if workers is None else int(workers)
+    if n < 0:
+        raise UserError(f"--workers: expected a number >= 0, got {n}")
+    if n == 0:
+        yield Executor()
+        return
+    if max_workers is not None:
+        n = max(1, min(n, int(max_workers)))
+    import logging
+
+    from distributed import Client, LocalCluster
+
+    threads = max(1, default_workers() // n)
+    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+                           host="127.0.0.1", silence_logs=logging.ERROR)
+    try:
+        client = Client(cluster)
+        try:
+            yield Executor(client, n, None, threads)
+        finally:
+            client.close()
+    finally:
+        cluster.close()
+
+
+def _call(task: Task, results: dict):
+    args = tuple(results[a.key] if isinstance(a, Dep) else a for a in task.args)
+    return task.function(*args)
+
+
+def run_tasks(tasks, ex: Executor, on_result=None, progress: bool = False, desc: str = "tasks") -> dict:
+    """Run ``tasks`` (dependencies first in the list) on ``ex``; return ``{key: result}``.
+
+    ``on_result(task, result)`` is called as each task finishes (in completion order). A task
+    whose function raised, or whose worker died, gets ``{"status": "failed", "error": ...}``
+    (task functions normally catch their own errors and say so in their result).
+    """
+    from tqdm import tqdm
+
+    tasks = list(tasks)
+    results: dict = {}
+    bar = tqdm(total=len(tasks), desc=desc, unit="task", disable=not progress, file=sys.stderr)
+    try:
+        if ex.client is None:
+            import mitsuba as mi
+
+            previous = mi.variant()
+            try:
+                for task in tasks:
+                    bar.set_postfix_str(task.label or task.key)
+                    try:
+                        results[task.key] = _call(task, results)
+                    except (KeyboardInterrupt, UserError):
+                        raise
+                    except Exception as e:
+                        results[task.key] = _failure(e)
+                    if on_result is not None:
+                        on_result(task, results[task.key])
+                    bar.update(1)
+            finally:
+                if previous is not None and mi.variant() != previous:
+                    mi.set_variant(previous)
+            return results
+
+        from distributed import as_completed
+
+        token = uuid.uuid4().hex[:10]
+        futures, by_future = {}, {}
+        for task in tasks:
+            args = tuple(futures[a.key] if isinstance(a, Dep) else a for a in task.args)
+            fut = ex.client.submit(_in_worker, task.function, ex.drjit_threads, *args,
+                                   key=f"{task.key}-{token}", pure=False)
+            futures[task.key] = fut
+            by_future[fut.key] = task
+        for fut in as_completed(list(futures.values())):
+            task = by_future[fut.key]
+            try:
+                results[task.key] = fut.result()
+            except KeyboardInterrupt:
+                raise
+            except Exception as e:
+                results[task.key] = _failure(e)
+            if on_result is not None:
+                on_result(task, results[task.key])
+            bar.set_postfix_str(task.label or task.key)
+            bar.update(1)
+        return results
+    finally:
+        bar.close()
+
+
+def generate_task(spec, folder: str) -> dict:
+    """The task that generates one dataset: ``spec`` (a
+    :class:`~thinfilm.generators.spec.SceneSpec`) into ``folder`` (written atomically; a
+    :func:`~thinfilm.core.outputs.staging_path` that the caller adopts into its output).
+    Returns ``{"status": "ok", "generate_s": ..., "staged": folder}`` or the failure."""
+    import time
+
+    from thinfilm.core.variants import use_variant
+    from thinfilm.generators.generate import generate_dataset
+
+    t0 = time.perf_counter()
+    try:
+        use_variant()
+        generate_dataset(spec, folder, progress=False)
+    except Exception as e:
+        return _failure(e)
+    return {"status": "ok", "generate_s": round(time.perf_counter() - t0, 2), "staged": folder}
+
+
+def _failure(e: BaseException) -> dict:
+    import traceback
+
+    return {"status": "failed", "error": f"{type(e).__name__}: {e}".splitlines()[0],
+            "traceback": "".join(traceback.format_exception(type(e), e, e.__traceback__, limit=6))}
