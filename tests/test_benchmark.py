@@ -32,14 +32,21 @@ def _tiny(tmp_path, **extra):
 
 # -- suites ------------------------------------------------------------------------------------------
 
-def test_presets_suite_is_todays_benchmark():
+def test_presets_suite_is_todays_benchmark_and_its_rough_versions():
     suite = suites.load_suite("presets")
     assert "presets" in suites.known_suites()
-    assert {s.name: s.kinds for s in suite.scenes} == benchmark.PRESET_KINDS
-    cases = suite.cases(quick=True)
-    assert [c.spec.rig.resolution for c in cases] == [128, 128, 128]
-    assert [c.spec.rig.resolution for c in suite.cases()] == [256, 256, 256]
-    assert [c.spec.rig.resolution for c in suite.cases(resolution=40)] == [40, 40, 40]
+    smooth = [s for s in suite.scenes if "rough" not in s.name]
+    assert {s.name: s.kinds for s in smooth} == benchmark.PRESET_KINDS
+    assert [c.spec.rig.resolution for c in suite.cases(quick=True)][:3] == [128, 128, 128]
+    assert [c.spec.rig.resolution for c in suite.cases()][:3] == [256, 256, 256]
+    assert {c.spec.rig.resolution for c in suite.cases(resolution=40)} == {40}
+    # each preset at alpha 0.02, 0.05 and 0.1, with the preset's kinds; 128 px, 64 px quick
+    rough = [c for c in suite.cases(quick=True) if c.spec.roughness]
+    assert sorted((c.spec.shape.kind, c.spec.roughness) for c in rough) == sorted(
+        (k, a) for k in ("hemisphere", "cylinder", "pyramid") for a in (0.02, 0.05, 0.1))
+    assert all(c.kinds == benchmark.PRESET_KINDS[c.spec.shape.kind] for c in rough)
+    assert {c.spec.rig.resolution for c in rough} == {64}
+    assert {c.spec.rig.resolution for c in suite.cases() if c.spec.roughness} == {128}
 
 
 def test_suite_file_paths_seeds_overrides_and_quick_resolution(tmp_path):
@@ -49,16 +56,18 @@ def test_suite_file_paths_seeds_overrides_and_quick_resolution(tmp_path):
     sub.mkdir()
     path = _suite(sub, ['name = "cyl"\nspec = "../specs/cyl.toml"\nseeds = [3, 4]\n'
                         'overrides = ["film.thickness.value=450"]\nkinds = ["spectral"]',
-                        'name = "hemi"\nspec = "hemisphere"\nresolution = 64'],
+                        'name = "hemi"\nspec = "hemisphere"\nresolution = 64',
+                        'name = "pyr"\nspec = "pyramid"\nresolution = 100\nquick_resolution = 32'],
                   extra="quick_resolution = 96\nmethods = [\"eikonal\"]")
     suite = suites.load_suite(path)
     assert suite.methods == ("eikonal",)
     cases = suite.cases(quick=True)
     assert [(c.id, c.seed, c.kinds) for c in cases] == [("cyl-s3", 3, ("spectral",)), ("cyl-s4", 4, ("spectral",)),
-                                                        ("hemi", 0, ("rgb", "spectral"))]
-    assert [c.spec.rig.resolution for c in cases] == [96, 96, 64]
+                                                        ("hemi", 0, ("rgb", "spectral")),
+                                                        ("pyr", 0, ("rgb", "spectral"))]
+    assert [c.spec.rig.resolution for c in cases] == [96, 96, 64, 32]
     assert cases[0].spec.shape.kind == "cylinder" and cases[0].spec.thickness["value"] == 450.0
-    assert [c.spec.rig.resolution for c in suite.cases()] == [200, 200, 64]
+    assert [c.spec.rig.resolution for c in suite.cases()] == [200, 200, 64, 100]
 
 
 @pytest.mark.parametrize("body, message", [

@@ -11,6 +11,7 @@ A suite is a TOML file::
     name = "torus-mgf2"                   # unique, used in folder names and reports
     spec = "../standard/torus_mgf2.toml"  # path relative to this suite file, or a preset name
     resolution = 96                       # optional (default: the spec's)
+    quick_resolution = 64                 # optional: this scene's --quick cap (default the suite's)
     seeds = [0]                           # optional (default: [the spec's seed])
     overrides = ["noise.bits=10"]         # optional --set items
     kinds = ["rgb", "spectral"]           # optional: reconstruction kinds that apply (default both)
@@ -26,8 +27,8 @@ A suite expands into *cases*: one per scene and seed, each a resolved
 Examples
 --------
 >>> suite = load_suite("presets")
->>> [s.name for s in suite.scenes]
-['hemisphere', 'cylinder', 'pyramid']
+>>> [s.name for s in suite.scenes][:4]
+['hemisphere', 'cylinder', 'pyramid', 'hemisphere-rough-0.02']
 >>> [(c.id, c.spec.rig.resolution, c.kinds) for c in suite.cases(quick=True)][2]
 ('pyramid', 128, ('rgb',))
 """
@@ -50,7 +51,7 @@ QUICK_RESOLUTION = 128
 KINDS = ("rgb", "spectral")
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
 _TOP_KEYS = ("name", "description", "methods", "quick_resolution", "scenes")
-_SCENE_KEYS = ("name", "spec", "resolution", "seeds", "overrides", "kinds")
+_SCENE_KEYS = ("name", "spec", "resolution", "quick_resolution", "seeds", "overrides", "kinds")
 
 
 @dataclass(frozen=True)
@@ -63,6 +64,7 @@ class SuiteScene:
     seeds: tuple | None = None
     overrides: tuple = ()
     kinds: tuple = KINDS
+    quick_resolution: int | None = None
 
 
 @dataclass(frozen=True)
@@ -91,8 +93,8 @@ class Suite:
         """Every (scene, seed) as a :class:`Case` with its resolved spec.
 
         ``resolution`` overrides every scene's; else a scene's own ``resolution`` or its
-        spec's, capped by ``quick_resolution`` (default :data:`QUICK_RESOLUTION`) when
-        ``quick``."""
+        spec's, capped when ``quick`` by the scene's ``quick_resolution``, else the suite's
+        (default :data:`QUICK_RESOLUTION`)."""
         from thinfilm.generators.spec import load_spec
 
         out = []
@@ -102,7 +104,7 @@ class Suite:
             if resolution is not None:
                 res = int(resolution)
             elif quick:
-                res = min(res, self.quick_resolution or QUICK_RESOLUTION)
+                res = min(res, scene.quick_resolution or self.quick_resolution or QUICK_RESOLUTION)
             seeds = scene.seeds if scene.seeds is not None else (base.seed,)
             for seed in seeds:
                 spec = load_spec(scene.spec, overrides=list(scene.overrides), resolution=res, seed=seed)
@@ -120,6 +122,7 @@ class Suite:
                 "methods": list(self.methods) if self.methods is not None else None,
                 "quick_resolution": self.quick_resolution,
                 "scenes": [{"name": s.name, "spec": s.spec, "resolution": s.resolution,
+                            "quick_resolution": s.quick_resolution,
                             "seeds": list(s.seeds) if s.seeds is not None else None,
                             "overrides": list(s.overrides), "kinds": list(s.kinds)} for s in self.scenes]}
 
@@ -229,6 +232,9 @@ def parse_suite(data: dict, path: Path | None = None) -> Suite:
         res = s.get("resolution")
         if res is not None:
             res = _int(w, "resolution", res, 1)
+        quick_res = s.get("quick_resolution")
+        if quick_res is not None:
+            quick_res = _int(w, "quick_resolution", quick_res, 1)
         seeds = s.get("seeds")
         if seeds is not None:
             if (not isinstance(seeds, list) or not seeds or len(set(seeds)) != len(seeds)
@@ -240,5 +246,6 @@ def parse_suite(data: dict, path: Path | None = None) -> Suite:
         bad = [k for k in kinds if k not in KINDS]
         if bad or not kinds:
             _fail(w, "kinds", f"a list of {' and '.join(KINDS)}", list(kinds))
-        scenes.append(SuiteScene(sname, spec, res, seeds, overrides, tuple(k for k in KINDS if k in kinds)))
+        scenes.append(SuiteScene(sname, spec, res, seeds, overrides, tuple(k for k in KINDS if k in kinds),
+                                 quick_res))
     return Suite(name, description, methods, quick, tuple(scenes), path)
