@@ -202,6 +202,15 @@ def plan_benchmark(suite, quick=False, methods=None, resolution=None) -> dict:
                               "ref": refs.get((kind, m.name), m.name),
                               "folder": f"tasks/{case.id}/{label}",
                               "key": _task_key(spec_toml, kind, m.name, m.source, __version__)})
+        if case.spec.rig.sensor == "dofp-rgb" and "rgb" in case.kinds:
+            # the same scene through its colour polarization sensor's raw image: imported
+            # (demosaiced), reconstructed, and scored against the scene's captures and truth
+            for m in chosen.get("rgb", []):
+                label = f"rgb-{_safe(m.name)}-mosaic"
+                tasks.append({"case": case, "kind": "rgb", "method": m, "label": label,
+                              "ref": refs.get(("rgb", m.name), m.name), "mosaic": True,
+                              "folder": f"tasks/{case.id}/{label}",
+                              "key": _task_key(spec_toml, "rgb-mosaic", m.name, m.source, __version__)})
     return {"suite": suite, "cases": cases, "methods": chosen, "missing_kinds": missing, "tasks": tasks,
             "quick": bool(quick), "resolution": resolution}
 
@@ -249,7 +258,8 @@ def _evaluate(dataset: Path, estimate: Path, out: Path, figures: bool = True) ->
 
 
 def _method_task(generated: dict, root: str, case_id: str, kind: str, method: str, role: str, source: str,
-                 folder: str, key: str, name: str | None = None, figures: bool = True) -> dict:
+                 folder: str, key: str, name: str | None = None, figures: bool = True,
+                 mosaic: bool = False) -> dict:
     """Reconstruct and score one case with one method (``method``: a registry name or
     ``package.module:function``, None for the ground truth; ``name``: its registry name),
     reading ``root/datasets/case_id``. The task folder is written atomically (``task.json``
@@ -260,7 +270,9 @@ def _method_task(generated: dict, root: str, case_id: str, kind: str, method: st
 
     root = Path(root)
     dataset = root / "datasets" / case_id
-    row = {"scene": case_id, "kind": kind, "method": name or method or "ground truth",
+    source_dataset = root / "datasets" / f"{case_id}-mosaic" if mosaic else dataset
+    row = {"scene": case_id, "kind": kind,
+           "method": (name or method or "ground truth") + (" (mosaic)" if mosaic else ""),
            "role": role, "source": source, "task": folder,
            "estimate": f"{folder}/estimate", "evaluation": f"{folder}/evaluation", "figures": bool(figures)}
     if generated.get("status") != "ok":
@@ -274,7 +286,7 @@ def _method_task(generated: dict, root: str, case_id: str, kind: str, method: st
             if method is None:
                 _ground_truth_estimate(dataset, tmp / "estimate")
             else:
-                run_method(kind, dataset, tmp / "estimate", method)
+                run_method(kind, source_dataset, tmp / "estimate", method)
             row["reconstruct_s"] = round(time.perf_counter() - t0, 2)
             t0 = time.perf_counter()
             row.update(_evaluate(dataset, tmp / "estimate", tmp / "evaluation", figures))
@@ -285,6 +297,27 @@ def _method_task(generated: dict, root: str, case_id: str, kind: str, method: st
                        traceback=traceback.format_exc(limit=6))
         write_json(tmp / "task.json", {"format": TASK_FORMAT, "key": key, "row": row})
     return dict(row, staged=str(staged))
+
+
+def _import_task(root: str, case_id: str, staged: str) -> dict:
+    """Import the raw sensor image of dataset ``case_id`` (``rig.sensor = "dofp-rgb"``) as the
+    camera would be imported (``thinfilm import polarization --layout dofp-rgb``), into
+    ``staged``. Returns ``{"status": "ok", "staged": ...}`` or the failure."""
+    try:
+        from thinfilm.core.io import read_json
+        from thinfilm.importers.polarization import import_polarization
+
+        folder = Path(root) / "datasets" / case_id
+        meta = read_json(folder / "meta.json")
+        sensor = meta["sensor"]
+        import_polarization([folder / sensor["file"]], staged, "dofp-rgb", pattern=sensor["pattern"],
+                            bit_depth=sensor["bits"], white_balance=",".join(repr(g) for g in sensor["white_balance"]),
+                            camera=meta["camera"], illuminant=meta["illuminant"], film_ior=meta["film_ior"],
+                            substrate_ior=meta["substrate_ior"], pixel_size=meta["projection"]["pixel_size"])
+    except Exception as e:
+        return {"status": "failed", "error": f"{type(e).__name__}: {e}".splitlines()[0],
+                "traceback": traceback.format_exc(limit=6)}
+    return {"status": "ok", "staged": staged}
 
 
 # -- resume ------------------------------------------------------------------------------------
@@ -381,8 +414,10 @@ def _run(folder, plan, suite, resume, workers, scheduler, progress, baseline, fi
                          (None, str(root), t["case"].id, t["kind"], None if t["method"] is None else t["ref"],
                           "noise floor" if t["method"] is None else t["method"].role,
                           "thinfilm" if t["method"] is None else t["method"].source,
-                          t["folder"], t["key"], None if t["method"] is None else t["method"].name, figures),
+                          t["folder"], t["key"], None if t["method"] is None else t["method"].name, figures,
+                          bool(t.get("mosaic"))),
                          label=f"{t['case'].id}: {t['label']}") for t in todo]
+    mosaic_cases = sorted({t["case"].id for t in todo if t.get("mosaic")})
     execution = {"mode": "nothing to run", "workers": 0}
     if gen_tasks or method_tasks:
         with executor(workers, scheduler, max_workers=max(len(gen_tasks), len(method_tasks), 1)) as ex:
@@ -391,8 +426,22 @@ def _run(folder, plan, suite, resume, workers, scheduler, progress, baseline, fi
                 if value.get("status") == "ok":
                     folder.adopt(f"datasets/{case_id}", value.pop("staged"))
                 generated[case_id] = value
+            # phase 2: the raw sensor images imported, where a scene has one
+            imports = [Task(f"import/{c}", _import_task,
+                            (str(root), c, str(staging_path(root / "datasets" / f"{c}-mosaic"))),
+                            label=f"import {c}") for c in mosaic_cases
+                       if generated.get(c, {"status": "ok"}).get("status") == "ok"]
+            imported = {}
+            for key, value in run_tasks(imports, ex, progress=progress, desc="imports").items():
+                c = key.split("/", 1)[1]
+                if value.get("status") == "ok":
+                    folder.adopt(f"datasets/{c}-mosaic", value.pop("staged"))
+                imported[c] = value
             for task in method_tasks:  # each task learns how its dataset went
-                task.args = (generated.get(task.args[2], {"status": "ok"}),) + task.args[1:]
+                state = generated.get(task.args[2], {"status": "ok"})
+                if task.args[-1] and state.get("status") == "ok":  # through the mosaic
+                    state = imported.get(task.args[2], {"status": "failed", "error": "not imported"})
+                task.args = (state,) + task.args[1:]
             for key, value in run_tasks(method_tasks, ex, progress=progress, desc="benchmark").items():
                 staged = value.pop("staged", None) if isinstance(value, dict) else None
                 if staged:
