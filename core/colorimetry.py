@@ -56,14 +56,9 @@ def _read_csv(path: Path, columns: int, what: str) -> np.ndarray:
     row): at least 2 rows, finite numbers, values >= 0, wavelengths increasing. Anything
     else is one :class:`UserError` naming the file and the line."""
     names = "wavelength_nm and " + (f"{columns} values" if columns > 1 else "a value")
-    try:
-        text = Path(path).read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise UserError(f"{path}: {what} CSV not found") from None
-    except UnicodeDecodeError:
-        raise UserError(f"{path}: {what} CSV is not a UTF-8 text file") from None
-    except OSError as e:
-        raise UserError(f"{path}: cannot read the {what} CSV ({e.strerror})") from None
+    from .io import read_text_file
+
+    text = read_text_file(path, f"{what} CSV", encoding="utf-8-sig")
     rows = []
     for lineno, line in enumerate(text.splitlines(), 1):
         line = line.split("#", 1)[0].strip()

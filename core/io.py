@@ -54,6 +54,8 @@ __all__ = [
     "read_metrics",
     "height_to_mesh",
     "read_json",
+    "read_text_file",
+    "read_toml",
     "read_mask_file",
     "write_json",
     "pol_layer",
@@ -418,6 +420,33 @@ def read_dataset(path, need=("polarized_rgb",), optional=None) -> Dataset:
     return ds
 
 
+def read_text_file(path, what: str = "file", encoding: str = "utf-8") -> str:
+    """The text of a file; a missing, unreadable or non-UTF-8 file is a one-line
+    :class:`UserError` naming it (``what`` says what the file should be)."""
+    path = Path(path)
+    try:
+        return path.read_text(encoding=encoding)
+    except FileNotFoundError:
+        raise UserError(f"{path}: {what} not found") from None
+    except IsADirectoryError:
+        raise UserError(f"{path}: is a folder, expected a {what}") from None
+    except UnicodeDecodeError:
+        raise UserError(f"{path}: the {what} is not a UTF-8 text file") from None
+    except OSError as e:
+        raise UserError(f"{path}: cannot read the {what} ({e.strerror or e})") from None
+
+
+def read_toml(path, what: str = "TOML file") -> dict:
+    """A parsed TOML file; errors as :func:`read_text_file`, and invalid TOML, are one line."""
+    import tomllib
+
+    text = read_text_file(path, what)
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise UserError(f"{path}: not valid TOML ({e})") from None
+
+
 def read_json(path, missing=None, finite=False):
     """Parse a JSON file; a missing or malformed file is a one-line :class:`UserError`
     (``missing`` adds a hint to the not-found message). With ``finite``, a ``NaN`` or
@@ -425,16 +454,13 @@ def read_json(path, missing=None, finite=False):
     path = Path(path)
     if not path.is_file():
         raise UserError(f"{path}: file not found" + (f" ({missing})" if missing else ""))
+    text = read_text_file(path, "JSON file")
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
+        data = json.loads(text)
     except json.JSONDecodeError as e:
         raise UserError(f"{path}: not valid JSON ({e.msg} at line {e.lineno})") from None
-    except UnicodeDecodeError:
-        raise UserError(f"{path}: not a text file") from None
     except RecursionError:
         raise UserError(f"{path}: not valid JSON (nested too deeply)") from None
-    except OSError as e:
-        raise UserError(f"{path}: cannot read the file ({e.strerror})") from None
     if finite:
         bad = _non_finite(data)
         if bad is not None:

@@ -213,14 +213,9 @@ def preset_path(name: str) -> Path:
 
 
 def _read_toml(path: Path) -> dict:
-    if not path.is_file():
-        raise UserError(f"{path}: scene spec not found")
-    try:
-        return tomllib.loads(path.read_text(encoding="utf-8"))
-    except tomllib.TOMLDecodeError as e:
-        raise UserError(f"{path}: not valid TOML ({e})") from None
-    except UnicodeDecodeError:
-        raise UserError(f"{path}: not a UTF-8 text file") from None
+    from thinfilm.core.io import read_toml
+
+    return read_toml(path, "scene spec")
 
 
 # --- overrides -----------------------------------------------------------------------------

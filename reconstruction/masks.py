@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 
-__all__ = ["mask_from_intensity", "outward_directions", "resolve_azimuth"]
+__all__ = ["mask_from_intensity", "otsu_threshold", "outward_directions", "resolve_azimuth"]
 
 
 def mask_from_intensity(intensity, min_pixels: int = 16):
@@ -37,7 +37,7 @@ def mask_from_intensity(intensity, min_pixels: int = 16):
         return np.zeros(v.shape, dtype=bool)
     floor = max(np.percentile(v[pos], 0.1) * 1e-2, 1e-9)
     lv = np.log10(np.maximum(v, floor))
-    t = _otsu(lv.ravel())
+    t = otsu_threshold(lv.ravel())
     lo, hi = lv[lv <= t], lv[lv > t]
     if lo.size == 0 or hi.size == 0 or np.median(hi) - np.median(lo) < 1.0:
         mask = pos
@@ -52,7 +52,8 @@ def mask_from_intensity(intensity, min_pixels: int = 16):
     return mask
 
 
-def _otsu(values, bins: int = 256):
+def otsu_threshold(values, bins: int = 256) -> float:
+    """Otsu's threshold of ``values``: the histogram split of largest between-class variance."""
     hist, edges = np.histogram(values, bins=bins)
     centers = 0.5 * (edges[:-1] + edges[1:])
     w0 = np.cumsum(hist)
@@ -61,7 +62,7 @@ def _otsu(values, bins: int = 256):
     mu0 = m0 / np.maximum(w0, 1)
     mu1 = (m0[-1] - m0) / np.maximum(w1, 1)
     between = w0 * w1 * (mu0 - mu1) ** 2
-    return centers[int(np.argmax(between))]
+    return float(centers[int(np.argmax(between))])
 
 
 def outward_directions(mask, smooth_px: float = 1.5):

@@ -10,6 +10,7 @@ temporary folder put on the commands' ``PYTHONPATH``.
 from __future__ import annotations
 
 import json
+import re
 import os
 import subprocess
 import sys
@@ -76,12 +77,18 @@ def test_reconstruct_and_benchmark_run_it(env, tmp_path):
     results = json.loads((out / "results.json").read_text())
     assert results["execution"]["mode"] == "local-cluster"
     rows = {(x["scene"], x["method"]): x for x in results["rows"]}
-    assert sorted(rows) == sorted((s, m) for s in ("hemisphere", "cylinder", "pyramid")
-                                  for m in ("ground truth", "example-flat", "coherent"))
+    presets = ("hemisphere", "cylinder", "pyramid")
+    rough = [f"{p}-rough-{a}" for p in presets for a in ("0.02", "0.05", "0.1")]
+    expected = {(s, m) for s in presets + tuple(rough) for m in ("ground truth", "example-flat", "coherent")}
+    expected |= {(s, f"{m} (mosaic)") for s in presets for m in ("example-flat", "coherent")}
+    assert set(rows) == expected
+    assert all(x["status"] == "ok" for x in results["rows"]), [x.get("error") for x in results["rows"]]
     for scene in ("hemisphere", "cylinder", "pyramid"):
         flat, coherent = rows[(scene, "example-flat")], rows[(scene, "coherent")]
         assert flat["source"] == DIST and flat["metrics"]["normal_error_deg"]["mean"] > 10.0
         assert coherent["metrics"]["normal_error_deg"]["mean"] < flat["metrics"]["normal_error_deg"]["mean"]
         assert all(x["scene"] and x.get("resumed") is None for x in (flat, coherent))
     board = (out / "report.md").read_text()
-    assert "| 1 | coherent |" in board and "| 2 | example-flat | other | thinfilm-example-estimator |" in board
+    ranks = {m: int(r) for r, m in re.findall(r"^\| (\d+) \| ([^|]+?) \|", board, flags=re.M)}
+    assert ranks["coherent"] < ranks["example-flat"] and ranks["coherent (mosaic)"] < ranks["example-flat"]
+    assert "| example-flat | other | thinfilm-example-estimator |" in board

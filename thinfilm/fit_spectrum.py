@@ -95,16 +95,9 @@ def read_spectrum(path, what="spectrum") -> Spectrum:
     file without data.
     """
     p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise UserError(f"{what} file {path}: no such file") from None
-    except IsADirectoryError:
-        raise UserError(f"{what} file {path}: is a folder, expected a two-column text file") from None
-    except UnicodeDecodeError:
-        raise UserError(f"{what} file {path}: not a text file (expected two columns: wavelength in nm, value)") from None
-    except OSError as e:
-        raise UserError(f"{what} file {path}: cannot be read ({e.strerror or e})") from None
+    from thinfilm.core.io import read_text_file
+
+    text = read_text_file(p, f"{what} file (two columns: wavelength in nm, value)")
 
     rows, lines = [], []
     header_allowed = True

@@ -84,12 +84,9 @@ def _one_line(error) -> str:
 
 def _read_scene_data(path: Path) -> dict:
     """The dictionary of a .toml or .json scene, checked to be a ``type = "scene"`` table."""
-    try:
-        text = path.read_text(encoding="utf-8")
-    except UnicodeDecodeError:
-        raise UserError(f"{path}: not a UTF-8 text file") from None
-    except OSError as e:
-        raise UserError(f"{path}: cannot read the scene ({e.strerror})") from None
+    from thinfilm.core.io import read_text_file
+
+    text = read_text_file(path, "scene")
     if path.suffix.lower() == ".toml":
         import tomllib
 

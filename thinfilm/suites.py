@@ -36,7 +36,6 @@ Examples
 from __future__ import annotations
 
 import re
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -156,14 +155,10 @@ def suite_path(name_or_file) -> Path:
 
 def load_suite(name_or_file) -> Suite:
     """Read and check a suite by shipped name or path (:func:`parse_suite`)."""
+    from thinfilm.core.io import read_toml
+
     path = suite_path(name_or_file)
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except tomllib.TOMLDecodeError as e:
-        raise UserError(f"{path}: not valid TOML ({e})") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise UserError(f"{path}: cannot read the suite ({e})") from None
-    return parse_suite(data, path)
+    return parse_suite(read_toml(path, "suite"), path)
 
 
 def _fail(where, key, expected, value):

@@ -25,7 +25,6 @@ import io
 import json
 import sys
 import time
-import tomllib
 from pathlib import Path
 
 from thinfilm.core.errors import UserError
@@ -44,12 +43,9 @@ def load_sweep(path, overrides=(), resolution=None) -> dict:
     p = Path(path).expanduser()
     if not p.is_file():
         raise UserError(f"--sweep {path}: file not found")
-    try:
-        raw = tomllib.loads(p.read_text(encoding="utf-8"))
-    except tomllib.TOMLDecodeError as e:
-        raise UserError(f"{p}: not valid TOML ({e})") from None
-    except UnicodeDecodeError:
-        raise UserError(f"{p}: not a UTF-8 text file") from None
+    from thinfilm.core.io import read_toml
+
+    raw = read_toml(p, "sweep")
     for item in overrides or ():
         _apply_override(raw, item)
     if resolution is not None:

@@ -37,6 +37,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from thinfilm.reconstruction.masks import otsu_threshold
+
 __all__ = ["demosaic", "footprint", "edge_pixels"]
 
 
@@ -158,17 +160,6 @@ def footprint(samples, pattern) -> np.ndarray:
     return hit
 
 
-def _otsu(values, bins: int = 256) -> float:
-    hist, edges = np.histogram(values, bins=bins)
-    centers = 0.5 * (edges[:-1] + edges[1:])
-    w0 = np.cumsum(hist)
-    w1 = w0[-1] - w0
-    m0 = np.cumsum(hist * centers)
-    mu0 = m0 / np.maximum(w0, 1)
-    mu1 = (m0[-1] - m0) / np.maximum(w1, 1)
-    return float(centers[int(np.argmax(w0 * w1 * (mu0 - mu1) ** 2))])
-
-
 def edge_pixels(raw, pattern, margin: int = 2) -> np.ndarray:
     """Pixels within the interpolation reach (plus ``margin``) of a dark/lit split of the
     scene (see the module docstring); all False when the image is not split into a dark
@@ -195,7 +186,7 @@ def edge_pixels(raw, pattern, margin: int = 2) -> np.ndarray:
         return np.zeros(raw.shape, dtype=bool)
     floor = max(float(np.percentile(bright[pos], 0.1)) * 1e-2, 1e-12)
     lb = np.log10(np.maximum(bright, floor))
-    t = _otsu(lb.ravel())
+    t = otsu_threshold(lb.ravel())
     lo, hi = lb[lb <= t], lb[lb > t]
     if lo.size == 0 or hi.size == 0 or np.median(hi) - np.median(lo) < 1.0:
         return np.zeros(raw.shape, dtype=bool)
