@@ -460,7 +460,7 @@ CASES = [
          "cube.hdr"),
 
     # --- fit-spectrum ------------------------------------------------------------------------------------
-    Case("fit-spectrum/missing-file", fit(spectrum="none.txt"), "none.txt: no such file"),
+    Case("fit-spectrum/missing-file", fit(spectrum="none.txt"), "none.txt: spectrum file (two columns: wavelength in nm, value) not found"),
     Case("fit-spectrum/nan-value", fit(), "not a finite number",
          setup=lambda c: _spectrum(c, lambda wl: np.where(wl == 500, np.nan, 0.05))),
     Case("fit-spectrum/text-cell", fit(), "is not a number", setup=lambda c: c.write("s.txt", "400,0.1\n410,high\n")),
