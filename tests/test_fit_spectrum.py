@@ -254,10 +254,11 @@ def test_cli_every_bad_file_one_line_exit_2(tmp_path, capsys):
     assert "Traceback" not in err
     for line, name in zip(lines, paths):
         assert line.startswith("thinfilm: error: ") and name in line
-    expect = {"missing.csv": "missing.csv: spectrum file (two columns: wavelength in nm, value) not found", "letters.csv": "line 2: 'abc' is not a number",
+    expect = {"missing.csv": "missing.csv: spectrum file (two columns: wavelength in nm, value) not found",
+              "letters.csv": "line 2: 'abc' is not a number",
               "short.csv": "5 samples", "repeat.csv": "repeats", "unordered.csv": "out of order",
               "three.csv": "expected two columns", "nan.csv": "not a finite number",
-              "binary.csv": "not a text file"}
+              "binary.csv": "not a UTF-8 text file"}
     for line, name in zip(lines, paths):
         assert expect[name] in line, line
 
