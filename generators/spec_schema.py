@@ -50,7 +50,19 @@ _SHAPE_KEYS = {
     "pyramid": {"base": ("length", 2.0), "height": ("length", 0.6)},
     "mesh": {"path": ("file", _REQUIRED), "scale": ("length", 1.0),
              "rotate_deg": ("vec3", [0.0, 0.0, 0.0]), "smooth": ("bool", True)},
+    "torus": {"major_radius": ("positive", 1.0), "minor_radius": ("positive", 0.35),
+              "rotate_deg": ("vec3", [0.0, 0.0, 0.0])},
+    "capsule": {"radius": ("positive", 0.5), "length": ("positive", 1.5),
+                "rotate_deg": ("vec3", [0.0, 0.0, 0.0])},
+    "ellipsoid": {"semi_axes": ("vec3_positive", [1.0, 0.7, 0.5]), "rotate_deg": ("vec3", [0.0, 0.0, 0.0])},
+    "cap": {"radius": ("positive", 1.0), "height": ("positive", 0.5), "rotate_deg": ("vec3", [0.0, 0.0, 0.0])},
+    "sheet": {"size": ("positive", 2.0), "amplitude": ("nonnegative", 0.12), "wavelength": ("positive", 1.0),
+              "direction_deg": ("number", 0.0), "phase_deg": ("number", 0.0), "cross": ("bool", False),
+              "rotate_deg": ("vec3", [0.0, 0.0, 0.0])},
+    "group": {"parts": ("parts", _REQUIRED)},
 }
+#: shape kinds a ``group`` part may be
+_PART_KINDS = tuple(k for k in _SHAPE_KEYS if k not in ("mesh", "group"))
 
 _PROFILE_KEYS = {
     "uniform": {"value": ("thickness", 400.0)},
@@ -185,6 +197,17 @@ class Checker:
             if not isinstance(value, list) or len(value) != 3:
                 self.fail(where, "a list of 3 numbers", value)
             return [self.number(where, v) for v in value]
+        if kind == "vec3_positive":
+            if not isinstance(value, list) or len(value) != 3:
+                self.fail(where, "a list of 3 numbers > 0", value)
+            out = [self.number(where, v) for v in value]
+            if min(out) <= 0:
+                self.fail(where, "a list of 3 numbers > 0", value)
+            return out
+        if kind == "number":
+            return self.number(where, value)
+        if kind == "parts":
+            return self._parts(where, value)
         if kind == "axis":
             if value not in ("x", "y"):
                 self.fail(where, "\"x\" or \"y\"", value)
@@ -310,6 +333,21 @@ class Checker:
         if kind == "illuminant":
             return self._colour_name(where, value, "illuminant")
         raise AssertionError(kind)
+
+    def _parts(self, where, value):
+        if not isinstance(value, list) or not value:
+            self.fail(where, "a list of shape tables (each with a kind and an offset)", value)
+        parts = []
+        for i, part in enumerate(value):
+            here = f"{where}[{i}]"
+            if not isinstance(part, dict):
+                self.fail(here, "a table", part)
+            kind = part.get("kind")
+            if kind not in _PART_KINDS:
+                self.fail(f"{here}.kind", f"one of {', '.join(_PART_KINDS)}", kind)
+            schema = dict(_SHAPE_KEYS[kind], offset=("vec3", [0.0, 0.0, 0.0]))
+            parts.append(self.table(here, part, schema, {"kind": kind}))
+        return parts
 
     def _colour_name(self, where, value, what):
         if not isinstance(value, str) or not value:

@@ -45,7 +45,7 @@ def coherent(dataset, options):
     return reconstruct_coherent(capture_from_dataset(dataset, options), progress=options.progress)
 
 
-def _spectral(dataset, options, function):
+def _spectral(dataset, options, function, use_stokes=False):
     from thinfilm.core.errors import UserError
 
     from .spectral import reconstruct_spectral
@@ -69,8 +69,9 @@ def _spectral(dataset, options, function):
         from .spectral_checks import object_mask
 
         mask = (object_mask(dataset.spectral_s) if mask is None else np.asarray(mask, dtype=bool)) & dataset.valid
+    stokes = dataset.stokes if (use_stokes and dataset.stokes) else None
     est = reconstruct_spectral(dataset.spectral_s, dataset.wavelengths_nm, n3, mask=mask,
-                               method=function, pixel_size=pixel_size or 1.0)
+                               method=function, pixel_size=pixel_size or 1.0, stokes=stokes)
     est.info["coverage"] = float(est.valid.sum() / max(1, est.info["object_pixels"]))
     est.info["height_unit"] = "pixel" if pixel_size is None else "scene"
     return est
@@ -87,13 +88,13 @@ def kobayashi(dataset, options):
 
 
 @estimator("eikonal", kind="spectral", role="default", aliases=("default",), needs=("spectral_s",),
-           estimates_film_ior=True,
-           description="one film index for the object, per-pixel spectrum fits, eikonal surface "
-                       "with a confidence-weighted refinement")
+           uses=("stokes",), estimates_film_ior=True,
+           description="one film index for the object (below or above the substrate's), per-pixel "
+                       "fits of the s and p spectra (or the s spectrum alone), one consistent surface")
 def eikonal(dataset, options):
     from .spectral_eikonal import reconstruct_eikonal
 
-    return _spectral(dataset, options, reconstruct_eikonal)
+    return _spectral(dataset, options, reconstruct_eikonal, use_stokes=True)
 
 
 #: the built-in methods (the ``builtin`` entry point of the ``thinfilm.estimators`` group)

@@ -25,7 +25,7 @@ from thinfilm.core.conventions import angles_to_normals
 from thinfilm.core.io import Estimate
 from thinfilm.core.progress import progress_bar
 
-from .masks import resolve_azimuth
+from .azimuth import resolve_azimuth_global
 from .rgb_capture import RGBCapture
 
 __all__ = ["reconstruct_coherent"]
@@ -108,7 +108,10 @@ def reconstruct_coherent(capture: RGBCapture, progress: bool = False, rounds: in
     info_n = _normal_information(fit.info, n_xy) / sigma ** 2
     w_n = np.full(mask.shape, 0.0)
     w_n[mask] = 0.5 * np.trace(info_n, axis1=1, axis2=2)
-    az = resolve_azimuth(az, zen, mask)
+    # the azimuth's sign for the whole object at once (occluding contours, holes, ridges),
+    # confidence 1 where the axis is known to 0.05 rad
+    conf = np.clip(w_n * np.sin(np.radians(np.nan_to_num(zen))) ** 2 * 0.05 ** 2, 0.0, 1.0)
+    az = resolve_azimuth_global(az, zen, mask, conf)
     timings["azimuth"] = time.perf_counter() - t
 
     t = time.perf_counter()

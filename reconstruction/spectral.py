@@ -40,7 +40,7 @@ __all__ = ["reconstruct_spectral"]
 
 
 def reconstruct_spectral(cube, wavelengths_nm, substrate_ior, mask=None, method=reconstruct_eikonal,
-                         pixel_size=1.0) -> Estimate:
+                         pixel_size=1.0, stokes=None) -> Estimate:
     """Estimate normals, film index and thickness from an s-polarized spectral cube.
 
     Parameters
@@ -73,7 +73,14 @@ def reconstruct_spectral(cube, wavelengths_nm, substrate_ior, mask=None, method=
     if not (np.isfinite(pixel_size) and pixel_size > 0):
         raise UserError(f"projection.pixel_size: expected a positive number, got {pixel_size}")
     t0 = time.perf_counter()
-    est = method(cube, wl, float(substrate_ior), mask)
+    if stokes is not None and method is reconstruct_eikonal:
+        from .spectral_stokes import reconstruct_stokes
+
+        for name in ("S0", "S1", "S2"):
+            check_cube(stokes[name], wl, where="stokes_spectral")
+        est = reconstruct_stokes(stokes, wl, float(substrate_ior), mask)
+    else:
+        est = method(cube, wl, float(substrate_ior), mask)
     if est.height is not None:
         est.height = est.height * float(pixel_size)
     est.pixel_size = float(pixel_size)

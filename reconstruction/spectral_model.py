@@ -55,16 +55,22 @@ def _measured(R_s, R_p, sigma2, sqrt):
     return 0.5 * (R_s + R_p) + sqrt(b * b + (0.5 * np.pi) * sigma2)
 
 
-def _np_rs(theta, d, n2, n3, wl, sig2=None):
+def _np_rs(theta, d, n2, n3, wl, sig2=None, with_p=False):
     R_s, R_p = optics.reflectances(np.cos(theta)[:, None], wl[None, :], d[:, None], n2[:, None], n3)
+    if with_p:
+        return np.concatenate([R_s, R_p], axis=1)
     if sig2 is None:
         return R_s
     return _measured(R_s, R_p, sig2[:, None], np.sqrt)
 
 
 def rs_spectra(theta_rad, thickness_nm, film_ior, substrate_ior, wavelengths_nm, jac=(),
-               stokes_noise=None):
+               stokes_noise=None, with_p=False):
     """s reflectance spectra of N pixels and, optionally, their partial derivatives.
+
+    With ``with_p`` every row holds the s spectrum followed by the p spectrum (2 B values;
+    ``stokes_noise`` is then not used: both come from the linear Stokes parameters, which
+    carry no such bias).
 
     Parameters
     ----------
@@ -93,32 +99,35 @@ def rs_spectra(theta_rad, thickness_nm, film_ior, substrate_ior, wavelengths_nm,
     n, b = theta.size, wl.size
     sig2 = None if stokes_noise is None else np.broadcast_to(
         np.asarray(stokes_noise, dtype=np.float64) ** 2, theta.shape).ravel()
-    outs = [np.empty((n, b)) for _ in range(1 + len(jac))]
-    rows = max(1, _CHUNK // max(b, 1))
+    if with_p:
+        sig2 = None
+    cols = 2 * b if with_p else b
+    outs = [np.empty((n, cols)) for _ in range(1 + len(jac))]
+    rows = max(1, _CHUNK // max(cols, 1))
     use_dr = drjit_available()
     for s in range(0, n, rows):
         e = min(n, s + rows)
         parts = (_dr_chunk if use_dr else _np_chunk)(theta[s:e], d[s:e], n2[s:e], float(substrate_ior), wl, jac,
-                                                     None if sig2 is None else sig2[s:e])
+                                                     None if sig2 is None else sig2[s:e], with_p)
         for o, p in zip(outs, parts):
             o[s:e] = p
     return outs[0] if not jac else tuple(outs)
 
 
-def _np_chunk(theta, d, n2, n3, wl, jac, sig2=None):
-    out = [_np_rs(theta, d, n2, n3, wl, sig2)]
+def _np_chunk(theta, d, n2, n3, wl, jac, sig2=None, with_p=False):
+    out = [_np_rs(theta, d, n2, n3, wl, sig2, with_p)]
     steps = {"theta": 1e-6, "thickness": 1e-4, "film_ior": 1e-6}
     for name in jac:
         h = steps[name]
         args = {"theta": theta, "thickness": d, "film_ior": n2}
         hi = dict(args, **{name: args[name] + h})
         lo = dict(args, **{name: args[name] - h})
-        out.append((_np_rs(hi["theta"], hi["thickness"], hi["film_ior"], n3, wl, sig2)
-                    - _np_rs(lo["theta"], lo["thickness"], lo["film_ior"], n3, wl, sig2)) / (2 * h))
+        out.append((_np_rs(hi["theta"], hi["thickness"], hi["film_ior"], n3, wl, sig2, with_p)
+                    - _np_rs(lo["theta"], lo["thickness"], lo["film_ior"], n3, wl, sig2, with_p)) / (2 * h))
     return out
 
 
-def _dr_chunk(theta, d, n2, n3, wl, jac, sig2=None):
+def _dr_chunk(theta, d, n2, n3, wl, jac, sig2=None, with_p=False):
     import drjit as dr
     from drjit.llvm.ad import Float64
 
@@ -131,17 +140,22 @@ def _dr_chunk(theta, d, n2, n3, wl, jac, sig2=None):
     for name in jac:
         dr.enable_grad(var[name])
     R_s, R_p = optics.reflectances(dr.cos(T), W, D, N2, n3)
-    R = R_s if sig2 is None else _measured(R_s, R_p, dr.repeat(Float64(sig2), b), dr.sqrt)
+    outs = [R_s, R_p] if with_p else [R_s if sig2 is None else _measured(R_s, R_p, dr.repeat(Float64(sig2), b), dr.sqrt)]
     grads = []
     for name in jac:
         # symbolic forward passes (keeping the graph's edges for the next one); nothing is
         # evaluated until the end, so the value and every derivative come from one kernel
         dr.forward_from(var[name], flags=dr.ADFlag.ClearVertices)
-        grads.append(dr.grad(R))
-        dr.clear_grad(R)
-    R = dr.detach(R)
-    dr.eval(R, *grads)
-    return [x.numpy().reshape(n, b) for x in (R, *grads)]
+        grads.append([dr.grad(R) for R in outs])
+        for R in outs:
+            dr.clear_grad(R)
+    outs = [dr.detach(R) for R in outs]
+    dr.eval(*outs, *[g for gs in grads for g in gs])
+
+    def arr(parts):
+        return np.concatenate([x.numpy().reshape(n, b) for x in parts], axis=1)
+
+    return [arr(outs)] + [arr(gs) for gs in grads]
 
 
 def grid_sse(observed, theta_rad, thickness_nm, film_ior, substrate_ior, wavelengths_nm):
@@ -149,7 +163,7 @@ def grid_sse(observed, theta_rad, thickness_nm, film_ior, substrate_ior, wavelen
 
     Parameters
     ----------
-    observed : (N, B) measured spectra.
+    observed : (N, B) measured s spectra, or (N, 2 B) s then p spectra.
     theta_rad : (N,) incident angles.
     thickness_nm, film_ior : (N, K) candidates (NaN thickness: candidate skipped, SSE = inf).
 
@@ -164,6 +178,7 @@ def grid_sse(observed, theta_rad, thickness_nm, film_ior, substrate_ior, wavelen
     wl = np.asarray(wavelengths_nm, dtype=np.float64)
     n, k = d.shape
     b = wl.size
+    with_p = obs.shape[1] == 2 * b
     bad = ~np.isfinite(d)
     d = np.where(bad, 0.0, d)
     out = np.empty((n, k))
@@ -173,9 +188,11 @@ def grid_sse(observed, theta_rad, thickness_nm, film_ior, substrate_ior, wavelen
         if drjit_available():
             out[s:e] = _dr_grid(obs[s:e], theta[s:e], d[s:e], n2[s:e], float(substrate_ior), wl)
         else:
-            R = optics.reflectances(np.cos(theta[s:e])[:, None, None], wl, d[s:e, :, None],
-                                    n2[s:e, :, None], substrate_ior)[0]
-            out[s:e] = np.sum((obs[s:e, None, :] - R) ** 2, axis=-1)
+            R_s, R_p = optics.reflectances(np.cos(theta[s:e])[:, None, None], wl, d[s:e, :, None],
+                                           n2[s:e, :, None], substrate_ior)
+            out[s:e] = np.sum((obs[s:e, None, :b] - R_s) ** 2, axis=-1)
+            if with_p:
+                out[s:e] += np.sum((obs[s:e, None, b:] - R_p) ** 2, axis=-1)
     out[bad] = np.inf
     return out
 
@@ -195,10 +212,15 @@ def _dr_grid(obs, theta, d, n2, n3, wl):
     D = dr.gather(Float64, Float64(d.ravel()), cand)
     N2 = dr.gather(Float64, Float64(n2.ravel()), cand)
     W = dr.gather(Float64, Float64(wl), band)
-    O = dr.gather(Float64, Float64(obs.ravel()), pix * b + band)
-    R = optics.reflectances(C, W, D, N2, n3)[0]
-    r = O - R
-    return dr.block_sum(r * r, b).numpy().reshape(n, k)
+    cols = obs.shape[1]
+    flat = Float64(np.ascontiguousarray(obs).ravel())
+    R_s, R_p = optics.reflectances(C, W, D, N2, n3)
+    r = dr.gather(Float64, flat, pix * cols + band) - R_s
+    r2 = r * r
+    if cols == 2 * b:
+        rp = dr.gather(Float64, flat, pix * cols + b + band) - R_p
+        r2 = r2 + rp * rp
+    return dr.block_sum(r2, b).numpy().reshape(n, k)
 
 
 def peak_reflectance(theta_rad, substrate_ior):
