@@ -397,10 +397,65 @@ def resolve_signs(J, h, label, orient, mask, weight, min_region_weight=0.002, sw
     return np.where(m, s, 0.0)
 
 
-def resolve_azimuth_global(azimuth_mod_deg, zenith_deg, mask, confidence=None, first=1.0, second=1.0):
+def _half(o, conf, mask):
+    """The field on 2 x 2 blocks: the confidence-weighted mean of ``o ⊗ o`` (sign-free) turned
+    back into an axis and magnitude, the mean confidence, blocks with two mask pixels."""
+    H, W = mask.shape
+    Hp, Wp = H + H % 2, W + W % 2
+    pad = ((0, Hp - H), (0, Wp - W))
+    m = np.pad(mask, pad).astype(float)
+    c = np.pad(np.where(mask, conf, 0.0), pad)
+    ox, oy = np.pad(o[..., 0], pad), np.pad(o[..., 1], pad)
+    # doubled-angle vector v = |o|² (cos 2φ, sin 2φ): averaging it needs no sign
+    v1, v2 = ox * ox - oy * oy, 2.0 * ox * oy
+
+    def blocks(a):
+        return a.reshape(Hp // 2, 2, Wp // 2, 2).sum(axis=(1, 3))
+
+    w = blocks(c * m) + 1e-12
+    cnt = blocks(m)
+    V1, V2 = blocks(c * v1) / w, blocks(c * v2) / w
+    mag2 = np.hypot(V1, V2)
+    phi = 0.5 * np.arctan2(V2, V1)
+    oc = np.sqrt(mag2)[..., None] * np.stack([np.cos(phi), np.sin(phi)], -1)
+    mc = cnt >= 2
+    return np.where(mc[..., None], oc, 0.0), np.where(mc, blocks(c) / np.maximum(cnt, 1), 0.0), mc
+
+
+def _signs(o, th, conf, m, first, second, max_pixels):
+    """Signs (H, W) of the representatives ``o``; large masks are solved on 2 x 2 blocks
+    (recursively) and every pixel takes the sign that agrees with its block's signed field,
+    interpolated."""
+    if max_pixels is not None and m.sum() > max_pixels:
+        oc, cc, mc = _half(o, conf, m)
+        sc = _signs(oc, np.arcsin(np.clip(np.linalg.norm(oc, axis=-1), 0.0, 1.0)), cc, mc, first, second,
+                    max_pixels)
+        signed = np.where(mc[..., None], oc * sc[..., None], 0.0)
+        from scipy import ndimage
+
+        _, (ir, ic) = ndimage.distance_transform_edt(~mc, return_indices=True)
+        H, W = m.shape
+        r = (np.arange(H) - 0.5) / 2.0
+        cgrid = (np.arange(W) - 0.5) / 2.0
+        R, C = np.meshgrid(r, cgrid, indexing="ij")
+        up = np.stack([ndimage.map_coordinates(signed[..., k][ir, ic], [R, C], order=1, mode="nearest")
+                       for k in range(2)], -1)
+        return np.where(m, np.where(np.sum(up * o, axis=-1) >= 0, 1.0, -1.0), 0.0)
+    J = coupling_matrix(o, conf, m, first, second)
+    h = contour_anchors(o, th, conf, m).ravel()
+    label, orient = _regions(o, conf, m)
+    weight = (conf * np.sin(th) ** 2).ravel()
+    return resolve_signs(J, h, label, orient, m, weight).reshape(m.shape)
+
+
+def resolve_azimuth_global(azimuth_mod_deg, zenith_deg, mask, confidence=None, first=1.0, second=1.0,
+                           max_pixels=12000):
     """Azimuth in [0, 360) (degrees; NaN outside the mask) from the azimuth modulo 180°,
     the zenith and a per-pixel confidence (0-1, e.g. the normalised precision of the
     normal's image-plane part; default 1), by minimising the energy of the module docstring.
+
+    Masks of more than ``max_pixels`` pixels are solved on 2 x 2 blocks (recursively): each
+    pixel then takes the sign that agrees with its block's (interpolated) signed normal.
     """
     m = np.asarray(mask, dtype=bool)
     phi = np.radians(np.nan_to_num(np.asarray(azimuth_mod_deg, dtype=np.float64)))
@@ -409,10 +464,6 @@ def resolve_azimuth_global(azimuth_mod_deg, zenith_deg, mask, confidence=None, f
     conf = np.where(m, conf, 0.0)
     o = np.sin(th)[..., None] * np.stack([np.cos(phi), np.sin(phi)], -1)
     o = np.where(m[..., None], o, 0.0)
-    J = coupling_matrix(o, conf, m, first, second)
-    h = contour_anchors(o, th, conf, m).ravel()
-    label, orient = _regions(o, conf, m)
-    weight = (conf * np.sin(th) ** 2).ravel()
-    s = resolve_signs(J, h, label, orient, m, weight).reshape(m.shape)
+    s = _signs(o, th, conf, m, first, second, max_pixels)
     az = np.where(s < 0, phi + np.pi, phi)
     return np.where(m, np.mod(np.degrees(az), 360.0), np.nan)

@@ -288,7 +288,7 @@ def _pooled_search(S, th, lam, n3, wl, grid):
 
 
 def estimate_film_ior_either_side(spectra, wavelengths_nm, substrate_ior, max_pixels=160,
-                                  angle_range_deg=(20.0, 70.0), coarse_step=0.04):
+                                  angle_range_deg=(20.0, 70.0), coarse_step=0.04, max_candidates=4000):
     """One film index for the object, below or above the substrate's, from the spectra.
 
     Which side holds is read from the physics of the spectra: below the substrate's index the
@@ -302,6 +302,8 @@ def estimate_film_ior_either_side(spectra, wavelengths_nm, substrate_ior, max_pi
     Parameters
     ----------
     spectra : (N, B) s spectra, or (N, 2 B) s then p spectra (a Stokes capture: both fitted).
+    max_pixels : pixels pooled per hypothesis (evenly spread over those that qualify).
+    max_candidates : pixels examined for extrema (evenly spread over the object).
 
     Returns
     -------
@@ -316,6 +318,8 @@ def estimate_film_ior_either_side(spectra, wavelengths_nm, substrate_ior, max_pi
     """
     wl = np.asarray(wavelengths_nm, dtype=np.float64)
     S_all = np.asarray(spectra, dtype=np.float64)
+    if S_all.shape[0] > max_candidates:
+        S_all = S_all[np.linspace(0, S_all.shape[0] - 1, max_candidates).round().astype(int)]
     b = wl.size
     lo, hi = np.radians(angle_range_deg)
     hyp = {}
@@ -369,6 +373,8 @@ def estimate_film_ior_either_side(spectra, wavelengths_nm, substrate_ior, max_pi
         if 1.0 < n2_m < substrate_ior - 1e-3 and abs(n2_m - n2_fit) > 0.02:
             d_m = d0[ok] * n2_fit / n2_m
             n2_mf, _, _, sse_m = _joint_film_ior(S[ok], t[ok], d_m, n2_m, substrate_ior, wl, bounds=bounds)
+            from .peaks import _band_noise
+
             sigma2 = float(np.median(_band_noise(S[ok, :b]))) ** 2
             indistinct = abs(sse_m - sse) < max(10.0 * sigma2, 0.02 * min(sse, sse_m))
             mirrored = {"film_ior": float(n2_mf), "sse_ratio": float(sse_m / max(sse, 1e-300))}
@@ -379,12 +385,6 @@ def estimate_film_ior_either_side(spectra, wavelengths_nm, substrate_ior, max_pi
             "film_ior_mirrored": mirrored}
     return float(n2_fit), info
 
-
-def _band_noise(spectra):
-    """Robust noise of one band per spectrum: MAD of second differences / sqrt(6)."""
-    d2 = spectra[:, 2:] - 2.0 * spectra[:, 1:-1] + spectra[:, :-2]
-    mad = np.median(np.abs(d2 - np.median(d2, axis=1, keepdims=True)), axis=1)
-    return 1.4826 * mad / np.sqrt(6.0)
 
 
 def _init_no_peak(S, n2, n3, wl, d_guess):

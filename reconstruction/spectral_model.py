@@ -18,11 +18,13 @@ import numpy as np
 from thinfilm.bsdf import optics
 
 __all__ = [
+    "airy_coefficients",
     "rs_spectra",
     "grid_sse",
     "peak_reflectance",
     "angle_from_peak",
     "drjit_available",
+    "use_drjit",
 ]
 
 _CHUNK = 1 << 22  # elements (pixels × bands) per kernel
@@ -41,6 +43,16 @@ def drjit_available() -> bool:
         return bool(np.all(np.isfinite(y.numpy())))
     except Exception:  # pragma: no cover - depends on the machine
         return False
+
+
+#: below this many lanes (pixels × bands × outputs) a NumPy evaluation beats a Dr.Jit
+#: kernel (whose thread pool takes milliseconds to wake up)
+DRJIT_MIN_LANES = 1 << 18
+
+
+def use_drjit(lanes: int, minimum: int = DRJIT_MIN_LANES) -> bool:
+    """Whether an evaluation of ``lanes`` values runs on Dr.Jit's LLVM backend."""
+    return lanes >= minimum and drjit_available()
 
 
 def _measured(R_s, R_p, sigma2, sqrt):
@@ -104,7 +116,7 @@ def rs_spectra(theta_rad, thickness_nm, film_ior, substrate_ior, wavelengths_nm,
     cols = 2 * b if with_p else b
     outs = [np.empty((n, cols)) for _ in range(1 + len(jac))]
     rows = max(1, _CHUNK // max(cols, 1))
-    use_dr = drjit_available()
+    use_dr = use_drjit(n * cols * (1 + len(jac)))
     for s in range(0, n, rows):
         e = min(n, s + rows)
         parts = (_dr_chunk if use_dr else _np_chunk)(theta[s:e], d[s:e], n2[s:e], float(substrate_ior), wl, jac,
@@ -178,28 +190,48 @@ def grid_sse(observed, theta_rad, thickness_nm, film_ior, substrate_ior, wavelen
     wl = np.asarray(wavelengths_nm, dtype=np.float64)
     n, k = d.shape
     b = wl.size
-    with_p = obs.shape[1] == 2 * b
     bad = ~np.isfinite(d)
     d = np.where(bad, 0.0, d)
+    # the reflectances through their Airy coefficients (exact; one cosine per band): per
+    # pixel when every candidate of a row has the same film index, else per candidate
+    u = np.sin(theta) ** 2
+    if n and np.all(n2 == n2[:, :1]):
+        C = airy_coefficients(u, n2[:, 0] if np.ptp(n2) > 0 else float(n2.flat[0]), substrate_ior)
+        C = {key: np.broadcast_to(v[:, None], (n, k)) for key, v in C.items()}
+    else:
+        C = airy_coefficients(np.repeat(u, k), n2.ravel(), substrate_ior)
+        C = {key: v.reshape(n, k) for key, v in C.items()}
     out = np.empty((n, k))
     rows = max(1, _CHUNK // (b * k))
+    kernel = _dr_grid if use_drjit(n * k * b) else _np_grid
     for s in range(0, n, rows):
         e = min(n, s + rows)
-        if drjit_available():
-            out[s:e] = _dr_grid(obs[s:e], theta[s:e], d[s:e], n2[s:e], float(substrate_ior), wl)
-        else:
-            R_s, R_p = optics.reflectances(np.cos(theta[s:e])[:, None, None], wl, d[s:e, :, None],
-                                           n2[s:e, :, None], substrate_ior)
-            out[s:e] = np.sum((obs[s:e, None, :b] - R_s) ** 2, axis=-1)
-            if with_p:
-                out[s:e] += np.sum((obs[s:e, None, b:] - R_p) ** 2, axis=-1)
+        out[s:e] = kernel(obs[s:e], d[s:e], {key: v[s:e] for key, v in C.items()}, wl)
     out[bad] = np.inf
     return out
 
 
-def _dr_grid(obs, theta, d, n2, n3, wl):
+def _grid_lanes(O_s, O_p, C, D, K, cos):
+    """Squared residuals of one band for candidates with Airy coefficients ``C``."""
+    c = cos(K * D * C["q2"])
+    r = O_s - (C["a_s"] + C["e_s"] * c) / (1.0 + C["e_s"] * c)
+    r2 = r * r
+    if O_p is not None:
+        rp = O_p - (C["a_p"] + C["e_p"] * c) / (1.0 + C["e_p"] * c)
+        r2 = r2 + rp * rp
+    return r2
+
+
+def _np_grid(obs, d, C, wl):
+    b = wl.size
+    O_p = obs[:, None, b:] if obs.shape[1] == 2 * b else None
+    Cb = {key: v[..., None] for key, v in C.items()}
+    return np.sum(_grid_lanes(obs[:, None, :b], O_p, Cb, d[..., None], 4.0 * np.pi / wl, np.cos), axis=-1)
+
+
+def _dr_grid(obs, d, C, wl):
     import drjit as dr
-    from drjit.llvm.ad import Float64, UInt32
+    from drjit.llvm import Float64, UInt32
 
     n, k = d.shape
     b = wl.size
@@ -207,20 +239,93 @@ def _dr_grid(obs, theta, d, n2, n3, wl):
     idx = dr.arange(UInt32, total)
     pix = idx // (k * b)
     cand = idx // b
-    band = idx % b
-    C = dr.gather(Float64, Float64(np.cos(theta)), pix)
-    D = dr.gather(Float64, Float64(d.ravel()), cand)
-    N2 = dr.gather(Float64, Float64(n2.ravel()), cand)
-    W = dr.gather(Float64, Float64(wl), band)
+    band = idx - cand * b
+    Cl = {key: dr.gather(Float64, Float64(np.ascontiguousarray(v, dtype=np.float64).ravel()), cand)
+          for key, v in C.items()}
+    D = dr.gather(Float64, Float64(np.ascontiguousarray(d).ravel()), cand)
+    K = dr.gather(Float64, Float64(4.0 * np.pi / wl), band)
     cols = obs.shape[1]
-    flat = Float64(np.ascontiguousarray(obs).ravel())
-    R_s, R_p = optics.reflectances(C, W, D, N2, n3)
-    r = dr.gather(Float64, flat, pix * cols + band) - R_s
-    r2 = r * r
-    if cols == 2 * b:
-        rp = dr.gather(Float64, flat, pix * cols + b + band) - R_p
-        r2 = r2 + rp * rp
+    flat = Float64(np.ascontiguousarray(obs, dtype=np.float64).ravel())
+    O_s = dr.gather(Float64, flat, pix * cols + band)
+    O_p = dr.gather(Float64, flat, pix * cols + b + band) if cols == 2 * b else None
+    r2 = _grid_lanes(O_s, O_p, Cl, D, K, dr.cos)
+    dr.eval(r2)
     return dr.block_sum(r2, b).numpy().reshape(n, k)
+
+
+def airy_coefficients(u, film_ior, substrate_ior, derivatives=False, reference_nm=500.0):
+    """Per pixel, the two coefficients of each polarization's reflectance as a function of
+    the film's round-trip phase Δ, and the film's normal wavenumber factor.
+
+    For a non-absorbing film on a dielectric substrate (real Fresnel amplitudes r12, r23, no
+    total reflection) the Airy sum gives ``R = (a + e cos Δ) / (1 + e cos Δ)`` with
+    ``Δ = 4π q2 d / λ`` and ``q2 = sqrt(n2² - sin² θ)``: ``a`` is the reflectance at a
+    quarter wave (Δ = π/2) and ``e = (R(0) - a) / (1 - R(0))``, ``R(0)`` the bare
+    substrate's. Both are taken from the optics core at one wavelength (the angle dependence
+    sits in them, the wavelength dependence in Δ), so a whole spectrum costs one cosine per
+    band (:func:`airy_spectra`).
+
+    Parameters
+    ----------
+    u : (N,) ``sin² θ``.
+    film_ior, substrate_ior : float or (N,).
+    derivatives : bool
+        Also return the derivatives of every coefficient with respect to ``u`` (central
+        differences).
+
+    Returns
+    -------
+    dict of (N,) arrays ``a_s``, ``e_s``, ``a_p``, ``e_p``, ``q2`` (and ``*_u`` with
+    ``derivatives``).
+    """
+    u = np.clip(np.asarray(u, dtype=np.float64), 0.0, 1.0)
+    if np.ndim(film_ior) == 0 and u.size > _AIRY_TABLE_MIN:
+        return _airy_table(float(film_ior), float(substrate_ior), float(reference_nm))(u, derivatives)
+    n2 = np.broadcast_to(np.asarray(film_ior, dtype=np.float64), u.shape)
+
+    def at(uu):
+        c = np.sqrt(1.0 - uu)
+        q2 = np.sqrt(n2 * n2 - uu)
+        R0s, R0p = optics.reflectances(c, reference_nm, 0.0, n2, substrate_ior)
+        Qs, Qp = optics.reflectances(c, reference_nm, reference_nm / (8.0 * q2), n2, substrate_ior)
+        return {"a_s": Qs, "e_s": (R0s - Qs) / (1.0 - R0s), "a_p": Qp, "e_p": (R0p - Qp) / (1.0 - R0p), "q2": q2}
+
+    out = at(u)
+    if derivatives:
+        h = 1e-6
+        hi, lo = np.minimum(u + h, 1.0 - 1e-12), np.maximum(u - h, 0.0)
+        up, dn = at(hi), at(lo)
+        for k in list(out):
+            out[k + "_u"] = (up[k] - dn[k]) / (hi - lo)
+    return out
+
+
+_AIRY_TABLE_MIN = 4096
+_AIRY_KEYS = ("a_s", "e_s", "a_p", "e_p", "q2")
+
+
+@functools.lru_cache(maxsize=8)
+def _airy_table(film_ior, substrate_ior, reference_nm):
+    """:func:`airy_coefficients` of one film as a cubic spline in ``u`` (nodes uniform in θ
+    up to 89.9°, 4000 of them: the spline reproduces the optics core to about 1e-10)."""
+    from scipy.interpolate import CubicSpline
+
+    theta = np.linspace(0.0, np.radians(89.9), 4000)
+    nodes = np.sin(theta) ** 2
+    exact = airy_coefficients(nodes, np.full(nodes.shape, film_ior), substrate_ior, reference_nm=reference_nm)
+    spline = CubicSpline(nodes, np.stack([exact[k] for k in _AIRY_KEYS], axis=-1), axis=0)
+    deriv = spline.derivative()
+
+    def evaluate(u, derivatives):
+        uu = np.minimum(u, nodes[-1])
+        v = spline(uu)
+        out = {k: v[..., i] for i, k in enumerate(_AIRY_KEYS)}
+        if derivatives:
+            dv = deriv(uu)
+            out.update({k + "_u": dv[..., i] for i, k in enumerate(_AIRY_KEYS)})
+        return out
+
+    return evaluate
 
 
 def peak_reflectance(theta_rad, substrate_ior):

@@ -28,7 +28,8 @@ import numpy as np
 from thinfilm.bsdf import optics
 
 from .lm import levenberg_marquardt
-from .spectral_model import drjit_available
+from .peaks import _band_noise
+from .spectral_model import airy_coefficients, use_drjit
 
 __all__ = ["U_MAX", "stokes_model", "stokes_normal_equations", "fit_stokes_pixels", "axis_from_stokes",
            "x_to_angles", "angles_to_x"]
@@ -36,7 +37,7 @@ __all__ = ["U_MAX", "stokes_model", "stokes_normal_equations", "fit_stokes_pixel
 #: largest ``u = sin² θ`` a fit may reach (θ = 89.5°)
 U_MAX = float(np.sin(np.radians(89.5)) ** 2)
 _U_EPS = 1e-9
-_CHUNK = 1 << 21  # pixels × bands per kernel
+_CHUNK_LANES = 1 << 19  # pixels × bands of one Dr.Jit evaluation of the normal equations
 
 
 def angles_to_x(theta_rad, phi_rad, thickness_nm):
@@ -86,44 +87,67 @@ def stokes_model(u, thickness_nm, film_ior, substrate_ior, wavelengths_nm):
     return 0.5 * (Rs + Rp), 0.5 * (Rs - Rp) / np.maximum(u, _U_EPS)[:, None]
 
 
-def stokes_normal_equations(S0, S1, S2, x, film_ior, substrate_ior, wavelengths_nm, w0=1.0, w1=None):
-    """Gauss-Newton normal equations of the Stokes model at ``x`` for N pixels.
-
-    Residuals per band: ``w0 (S0 - S0(u, d))``, ``w1 (S1 + Q v1)``, ``w1 (S2 + Q v2)``.
+class StokesData:
+    """Measured Stokes spectra of N pixels, with their residual weights, ready for repeated
+    evaluations of the normal equations (on Dr.Jit they are uploaded once).
 
     Parameters
     ----------
     S0, S1, S2 : (N, B) measured Stokes spectra.
-    x : (N, 3) ``(v1, v2, d)``.
-    film_ior : float or (N,); substrate_ior : float.
+    wavelengths_nm : (B,).
     w0, w1 : float or (N,) residual weights (``w1`` defaults to ``w0 / √2``).
-
-    Returns
-    -------
-    H : (N, 3, 3) ``JᵀJ``; g : (N, 3) ``Jᵀr`` (J the Jacobian of the residuals); cost : (N,)
-    ``Σ r²``.
     """
-    S0, S1, S2 = (np.asarray(a, dtype=np.float64) for a in (S0, S1, S2))
-    x = np.asarray(x, dtype=np.float64)
-    n, b = S0.shape
-    w0 = np.broadcast_to(np.asarray(w0, dtype=np.float64), (n,))
-    w1 = w0 / np.sqrt(2.0) if w1 is None else np.broadcast_to(np.asarray(w1, dtype=np.float64), (n,))
-    n2 = np.broadcast_to(np.asarray(film_ior, dtype=np.float64), (n,))
-    wl = np.asarray(wavelengths_nm, dtype=np.float64)
-    H = np.empty((n, 3, 3))
-    g = np.empty((n, 3))
-    cost = np.empty(n)
-    rows = max(1, _CHUNK // max(b, 1))
-    kernel = _dr_neq if drjit_available() else _np_neq
-    for s in range(0, n, rows):
-        e = min(n, s + rows)
-        sums = kernel(S0[s:e], S1[s:e], S2[s:e], x[s:e], n2[s:e], float(substrate_ior), wl, w0[s:e], w1[s:e])
+
+    def __init__(self, S0, S1, S2, wavelengths_nm, w0=1.0, w1=None):
+        self.S = [np.ascontiguousarray(a, dtype=np.float64) for a in (S0, S1, S2)]
+        n, b = self.S[0].shape
+        self.n, self.b = n, b
+        self.wl = np.asarray(wavelengths_nm, dtype=np.float64)
+        self.w0 = np.broadcast_to(np.asarray(w0, dtype=np.float64), (n,)).copy()
+        self.w1 = self.w0 / np.sqrt(2.0) if w1 is None else np.broadcast_to(np.asarray(w1, dtype=np.float64), (n,)).copy()
+        self._device = None
+
+    def device(self):
+        """The observations as flat Dr.Jit arrays (uploaded on first use)."""
+        if self._device is None:
+            from drjit.llvm import Float64
+
+            self._device = [Float64(a.ravel()) for a in self.S]
+        return self._device
+
+    def normal_equations(self, x, idx, film_ior, substrate_ior):
+        """Gauss-Newton normal equations at ``x`` (n, 3) of the pixels ``idx`` (n,).
+
+        Residuals per band: ``w0 (S0 - S0(u, d))``, ``w1 (S1 + Q v1)``, ``w1 (S2 + Q v2)``.
+
+        Returns
+        -------
+        H : (n, 3, 3) ``JᵀJ``; g : (n, 3) ``Jᵀr`` (J the Jacobian of the residuals); cost :
+        (n,) ``Σ r²``.
+        """
+        x = np.asarray(x, dtype=np.float64)
+        idx = np.asarray(idx)
+        n2 = np.broadcast_to(np.asarray(film_ior, dtype=np.float64), (idx.size,))
+        if use_drjit(idx.size * self.b, minimum=1 << 14):
+            # in chunks: the band terms of a chunk stay in (reused) memory of a few tens of MB
+            rows = max(1, _CHUNK_LANES // self.b)
+            parts = [_dr_airy_neq(self, x[s:s + rows], idx[s:s + rows], n2[s:s + rows], float(substrate_ior))
+                     for s in range(0, idx.size, rows)]
+            sums = [np.concatenate(c) for c in zip(*parts)]
+        else:
+            sums = _np_airy_neq([a[idx] for a in self.S], x, n2, float(substrate_ior), self.wl, self.w0[idx],
+                                self.w1[idx])
         h00, h01, h02, h11, h12, h22, g0, g1, g2, c = sums
-        H[s:e] = np.stack([np.stack([h00, h01, h02], -1), np.stack([h01, h11, h12], -1),
-                           np.stack([h02, h12, h22], -1)], -2)
-        g[s:e] = np.stack([g0, g1, g2], -1)
-        cost[s:e] = c
-    return H, g, cost
+        H = np.stack([np.stack([h00, h01, h02], -1), np.stack([h01, h11, h12], -1),
+                      np.stack([h02, h12, h22], -1)], -2)
+        return H, np.stack([g0, g1, g2], -1), c
+
+
+def stokes_normal_equations(S0, S1, S2, x, film_ior, substrate_ior, wavelengths_nm, w0=1.0, w1=None):
+    """Gauss-Newton normal equations of the Stokes model at ``x`` (N, 3) for N pixels
+    (:meth:`StokesData.normal_equations` of all of them)."""
+    data = StokesData(S0, S1, S2, wavelengths_nm, w0, w1)
+    return data.normal_equations(x, np.arange(data.n), film_ior, substrate_ior)
 
 
 def _residual_parts(O0, O1, O2, S0m, Q, S0u, Qu, S0d, Qd, V1, V2, E1, E2, w0, w1):
@@ -149,63 +173,87 @@ def _products(r, J):
     return out
 
 
-def _np_neq(O0, O1, O2, x, n2, n3, wl, w0, w1):
+def _airy_lanes(C, D, K, ops):
+    """Band values of ``S0``, ``Q`` and their derivatives in ``u`` and ``d`` from the
+    per-pixel Airy coefficients ``C`` (broadcast to the bands), thickness ``D`` and
+    ``K = 4π / λ`` (backend-generic: NumPy or Dr.Jit)."""
+    phase = K * D * C["q2"]
+    c, s_ = ops.cos(phase), ops.sin(phase)
+    dphase_u = K * D * C["q2_u"]
+    dphase_d = K * C["q2"]
+    out = {}
+    for pol in ("s", "p"):
+        a, e = C["a_" + pol], C["e_" + pol]
+        den = 1.0 / (1.0 + e * c)
+        R = (a + e * c) * den
+        dR_dc = e * (1.0 - a) * den * den
+        R_u = C["a_" + pol + "_u"] * den + C["e_" + pol + "_u"] * c * (1.0 - a) * den * den - dR_dc * s_ * dphase_u
+        R_d = -dR_dc * s_ * dphase_d
+        out[pol] = (R, R_u, R_d)
+    (Rs, Rs_u, Rs_d), (Rp, Rp_u, Rp_d) = out["s"], out["p"]
+    inv_u = 1.0 / C["u"]
+    S0m, S0u, S0d = 0.5 * (Rs + Rp), 0.5 * (Rs_u + Rp_u), 0.5 * (Rs_d + Rp_d)
+    Q = 0.5 * (Rs - Rp) * inv_u
+    Qu = (0.5 * (Rs_u - Rp_u) - Q) * inv_u
+    Qd = 0.5 * (Rs_d - Rp_d) * inv_u
+    return S0m, Q, S0u, Qu, S0d, Qd
+
+
+def _pixel_terms(x, n2, n3):
     u = np.hypot(x[:, 0], x[:, 1])
-    d = x[:, 2]
-    S0m, Q = stokes_model(u, d, n2, n3, wl)
-    hu, hd = 1e-6, 1e-3
-    up, um = np.minimum(u + hu, 1.0), np.maximum(u - hu, 0.0)
-    a, b_ = stokes_model(up, d, n2, n3, wl), stokes_model(um, d, n2, n3, wl)
-    du = (up - um)[:, None]
-    S0u, Qu = (a[0] - b_[0]) / du, (a[1] - b_[1]) / du
-    a, b_ = stokes_model(u, d + hd, n2, n3, wl), stokes_model(u, d - hd, n2, n3, wl)
-    S0d, Qd = (a[0] - b_[0]) / (2 * hd), (a[1] - b_[1]) / (2 * hd)
+    uc = np.clip(u, _U_EPS, 1.0)
+    if n2.size and np.all(n2 == n2[0]):
+        n2 = float(n2[0])                     # one film index: its tabulated coefficients
+    C = airy_coefficients(uc, n2, n3, derivatives=True)
+    C["u"] = uc
     us = np.where(u > _U_EPS, u, 1.0)
-    E1 = np.where(u > _U_EPS, x[:, 0] / us, 0.0)[:, None]
-    E2 = np.where(u > _U_EPS, x[:, 1] / us, 0.0)[:, None]
-    r, J = _residual_parts(O0, O1, O2, S0m, Q, S0u, Qu, S0d, Qd, x[:, :1], x[:, 1:2], E1, E2,
+    E1 = np.where(u > _U_EPS, x[:, 0] / us, 0.0)
+    E2 = np.where(u > _U_EPS, x[:, 1] / us, 0.0)
+    return C, E1, E2
+
+
+def _np_airy_neq(O, x, n2, n3, wl, w0, w1):
+    C, E1, E2 = _pixel_terms(x, n2, n3)
+    Cb = {k: v[:, None] for k, v in C.items()}
+    S0m, Q, S0u, Qu, S0d, Qd = _airy_lanes(Cb, x[:, 2:3], (4.0 * np.pi / wl)[None, :], _NP_OPS)
+    r, J = _residual_parts(O[0], O[1], O[2], S0m, Q, S0u, Qu, S0d, Qd, x[:, :1], x[:, 1:2], E1[:, None], E2[:, None],
                            w0[:, None], w1[:, None])
     return [np.sum(t, axis=1) for t in _products(r, J)]
 
 
-def _dr_neq(O0, O1, O2, x, n2, n3, wl, w0, w1):
+def _dr_airy_neq(data, x, idx, n2, n3):
+    """The normal equations on Dr.Jit, one lane per pixel and band (the band terms are
+    evaluated, then summed per pixel)."""
     import drjit as dr
-    from drjit.llvm.ad import Float64, UInt32
+    from drjit.llvm import Float64, UInt32
 
-    n, b = O0.shape
-    idx = dr.arange(UInt32, n * b)
-    pix = idx // b
-    band = idx - pix * b
-    u = np.hypot(x[:, 0], x[:, 1])
-    us = np.where(u > _U_EPS, u, 1.0)
-    per_pixel = {
-        "u": np.minimum(u, 1.0), "d": x[:, 2], "v1": x[:, 0], "v2": x[:, 1], "n2": n2,
-        "e1": np.where(u > _U_EPS, x[:, 0] / us, 0.0), "e2": np.where(u > _U_EPS, x[:, 1] / us, 0.0),
-        "w0": w0, "w1": w1,
-    }
-    P = {k: dr.gather(Float64, Float64(np.ascontiguousarray(v, dtype=np.float64)), pix) for k, v in per_pixel.items()}
-    W = dr.gather(Float64, Float64(wl), band)
-    O = [Float64(np.ascontiguousarray(o, dtype=np.float64).ravel()) for o in (O0, O1, O2)]
-    U, D = P["u"], P["d"]
-    dr.enable_grad(U, D)
-    Rs, Rp = optics.reflectances(dr.sqrt(dr.maximum(1.0 - U, 0.0)), W, D, P["n2"], n3)
-    S0m = 0.5 * (Rs + Rp)
-    Q = 0.5 * (Rs - Rp) / dr.maximum(U, _U_EPS)
-    grads = []
-    for var in (U, D):
-        dr.forward_from(var, flags=dr.ADFlag.ClearVertices)
-        grads += [dr.grad(S0m), dr.grad(Q)]
-        dr.clear_grad(S0m)
-        dr.clear_grad(Q)
-    S0m, Q = dr.detach(S0m), dr.detach(Q)
-    S0u, Qu, S0d, Qd = grads
-    # one kernel for the optics and its derivatives; the band sums below then read them
-    dr.eval(S0m, Q, S0u, Qu, S0d, Qd)
-    r, J = _residual_parts(O[0], O[1], O[2], S0m, Q, S0u, Qu, S0d, Qd, dr.detach(P["v1"]), dr.detach(P["v2"]),
-                           dr.detach(P["e1"]), dr.detach(P["e2"]), dr.detach(P["w0"]), dr.detach(P["w1"]))
-    sums = [dr.block_sum(t, b) for t in _products(r, J)]
+    n, b = idx.size, data.b
+    lane = dr.arange(UInt32, n * b)
+    pix = lane // b
+    band = lane - pix * b
+    C, E1, E2 = _pixel_terms(x, n2, n3)
+    P = {k: dr.gather(Float64, Float64(np.ascontiguousarray(v, dtype=np.float64)), pix)
+         for k, v in dict(C, d=x[:, 2], v1=x[:, 0], v2=x[:, 1], e1=E1, e2=E2, w0=data.w0[idx],
+                          w1=data.w1[idx]).items()}
+    K = dr.gather(Float64, Float64(4.0 * np.pi / data.wl), band)
+    O = data.device()
+    j = dr.gather(UInt32, UInt32(np.asarray(idx, dtype=np.uint32) * np.uint32(b)), pix) + band
+    S0m, Q, S0u, Qu, S0d, Qd = _airy_lanes(P, P["d"], K, dr)
+    r, J = _residual_parts(dr.gather(Float64, O[0], j), dr.gather(Float64, O[1], j), dr.gather(Float64, O[2], j),
+                           S0m, Q, S0u, Qu, S0d, Qd, P["v1"], P["v2"], P["e1"], P["e2"], P["w0"], P["w1"])
+    terms = _products(r, J)
+    dr.eval(*terms)
+    sums = [dr.block_sum(t_, b) for t_ in terms]
     dr.eval(*sums)
-    return [s.numpy() for s in sums]
+    return [s_.numpy() for s_ in sums]
+
+
+class _NpOps:
+    cos = staticmethod(np.cos)
+    sin = staticmethod(np.sin)
+
+
+_NP_OPS = _NpOps()
 
 
 def fit_stokes_pixels(S0, S1, S2, x0, film_ior, substrate_ior, wavelengths_nm, w0=1.0, iterations=10,
@@ -221,23 +269,19 @@ def fit_stokes_pixels(S0, S1, S2, x0, film_ior, substrate_ior, wavelengths_nm, w
     :class:`thinfilm.reconstruction.lm.LMResult` (``H`` is the Gauss-Newton information
     ``JᵀJ`` of the data at the solution, in the order (v1, v2, d); ``aux`` the data cost).
     """
-    S0, S1, S2 = (np.asarray(a, dtype=np.float64) for a in (S0, S1, S2))
-    n = S0.shape[0]
-    w0 = np.broadcast_to(np.asarray(w0, dtype=np.float64), (n,))
+    data = S0 if isinstance(S0, StokesData) else StokesData(S0, S1, S2, wavelengths_nm, w0)
+    n = data.n
     n2 = np.broadcast_to(np.asarray(film_ior, dtype=np.float64), (n,))
 
     def normal_equations(x, idx):
-        H, g, cost = stokes_normal_equations(S0[idx], S1[idx], S2[idx], x, n2[idx], substrate_ior,
-                                             wavelengths_nm, w0[idx])
-        data = cost.copy()
+        H, g, cost = data.normal_equations(x, idx, n2[idx], substrate_ior)
+        data_cost = cost.copy()
         if thickness_prior is not None:
             d_p, w_p = thickness_prior[0][idx], thickness_prior[1][idx]
-            H = H.copy()
             H[:, 2, 2] += w_p ** 2
-            g = g.copy()
             g[:, 2] += w_p ** 2 * (x[:, 2] - d_p)
             cost = cost + (w_p * (x[:, 2] - d_p)) ** 2
-        return H, g, cost, data
+        return H, g, cost, data_cost
 
     def project(x):
         u = np.hypot(x[:, 0], x[:, 1])
@@ -249,7 +293,7 @@ def fit_stokes_pixels(S0, S1, S2, x0, film_ior, substrate_ior, wavelengths_nm, w
 
     return levenberg_marquardt(project(np.array(x0, dtype=np.float64)), normal_equations, iterations,
                                project=project, max_step=[max_step_u, max_step_u, max_step_nm],
-                               step_tol=[1e-6, 1e-6, 1e-2], lam0=1e-3, lam_down=1.0 / 3.0, lam_up=5.0,
+                               step_tol=[1e-5, 1e-5, 0.05], lam0=1e-3, lam_down=1.0 / 3.0, lam_up=5.0,
                                floor_rel=1e-9, floor_abs=1e-18)
 
 
@@ -265,11 +309,15 @@ def normal_information(H):
     return Hvv - Hvd[:, :, None] * Hvd[:, None, :] / Hdd[:, None, None]
 
 
-def _band_noise(spectra):
-    """Robust noise of one band per spectrum: MAD of second differences / sqrt(6)."""
-    d2 = spectra[:, 2:] - 2.0 * spectra[:, 1:-1] + spectra[:, :-2]
-    mad = np.median(np.abs(d2 - np.median(d2, axis=1, keepdims=True)), axis=1)
-    return 1.4826 * mad / np.sqrt(6.0)
+def _nearest(mask, which):
+    """For every mask pixel (in mask order), the index (in mask order) of the nearest mask
+    pixel where ``which`` holds."""
+    from scipy import ndimage
+
+    img = np.full(mask.shape, -1, dtype=np.int64)
+    img[mask] = np.where(which, np.arange(which.size), -1)
+    _, (ir, ic) = ndimage.distance_transform_edt(img < 0, return_indices=True)
+    return img[ir, ic][mask]
 
 
 def _local_median(values, mask, size):
@@ -287,11 +335,9 @@ def _local_median(values, mask, size):
 
 
 def reconstruct_stokes(stokes, wavelengths_nm, substrate_ior, mask, smoothness=2.0, surface_sigma=0.01,
-                       misfit=4.0, iterations=10, thickness_sigma_nm=15.0):
+                       misfit=4.0, iterations=8, thickness_sigma_nm=15.0, seed_step=3, max_chi2=10.0):
     """The default spectral method on a Stokes capture (see :mod:`.spectral_default`)."""
     import time
-
-    from scipy import ndimage
 
     from thinfilm.core.io import Estimate
 
@@ -304,7 +350,7 @@ def reconstruct_stokes(stokes, wavelengths_nm, substrate_ior, mask, smoothness=2
     b = wl.size
     t = {}
     t0 = time.perf_counter()
-    S0, S1, S2 = (np.asarray(stokes[k], dtype=np.float64)[mask] for k in ("S0", "S1", "S2"))
+    S0, S1, S2 = (np.asarray(np.asarray(stokes[k])[mask], dtype=np.float64) for k in ("S0", "S1", "S2"))
     n = S0.shape[0]
     phi0, _ = axis_from_stokes(S1, S2)
     p = -(S1 * np.cos(2 * phi0)[:, None] + S2 * np.sin(2 * phi0)[:, None])   # P along the axis
@@ -318,33 +364,52 @@ def reconstruct_stokes(stokes, wavelengths_nm, substrate_ior, mask, smoothness=2
     above = n2_info["film_ior_above_substrate"]
     t["film_ior"] = time.perf_counter() - t0
 
-    # 2. every pixel's (v, d): start from its extremum (Eq. 21, 29), pixels without one from
-    # the nearest pixel with one
+    # 2. every pixel's (v, d). Seeds on a sparse grid start from their extremum (Eq. 21) and
+    # the best order of interference (Eq. 29) and are fitted first; every other pixel starts
+    # from its nearest fitted seed (surface and film are continuous), with its own azimuth
     t0 = time.perf_counter()
-    pk, th_ext = _sf.extrema_angles(sp[:, :b], wl, n3, above)
-    has = np.isfinite(th_ext)
-    th0 = np.zeros(n)
-    d0 = np.full(n, 400.0)
-    if has.any():
-        th0[has] = th_ext[has]
-        d0[has] = _sf.initial_thickness(sp[has], th_ext[has], pk.wavelength_nm[has], n2, n3, wl)
-        img = np.full(mask.shape, -1, dtype=np.int64)
-        img[mask] = np.where(has, np.arange(n), -1)
-        _, (ir, ic) = ndimage.distance_transform_edt(img < 0, return_indices=True)
-        src = img[ir, ic][mask]
-        th0, d0 = np.where(has, th0, th0[src]), np.where(has, d0, d0[src])
-    fit = fit_stokes_pixels(S0, S1, S2, angles_to_x(th0, phi0, d0), n2, n3, wl, iterations=iterations)
-    x, H, cost = fit.x, fit.H, fit.cost
+    rows, cols = np.nonzero(mask)
+    grid = (rows % seed_step == 0) & (cols % seed_step == 0)
+    if grid.sum() < 50:
+        grid = np.ones(n, dtype=bool)
+    gi = np.nonzero(grid)[0]
+    pk, th_ext = _sf.extrema_angles(sp[gi, :b], wl, n3, above)
+    ok = np.isfinite(th_ext)
+    if not ok.any():
+        gi = np.arange(n)
+        pk, th_ext = _sf.extrema_angles(sp[:, :b], wl, n3, above)
+        ok = np.isfinite(th_ext)
+    seeds = gi[ok]
+    d_s = _sf.initial_thickness(sp[seeds], th_ext[ok], pk.wavelength_nm[ok], n2, n3, wl)
+    t["init"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    fs = fit_stokes_pixels(S0[seeds], S1[seeds], S2[seeds], angles_to_x(th_ext[ok], phi0[seeds], d_s), n2, n3, wl,
+                           iterations=iterations)
+    is_seed = np.zeros(n, dtype=bool)
+    is_seed[seeds] = True
+    # seeds that did not fit (a wrong extremum or order) seed nobody
+    good_seed = np.zeros(n, dtype=bool)
+    good_seed[seeds] = fs.cost < misfit * 3 * b * noise[seeds] ** 2
+    if not good_seed.any():
+        good_seed[seeds] = True
+    x = np.zeros((n, 3))
+    x[seeds] = fs.x
+    src = _nearest(mask, good_seed)
+    th_s, _, d_s2 = x_to_angles(x[src])
+    x0 = angles_to_x(th_s, phi0, d_s2)
+    rest = np.nonzero(~is_seed)[0]
+    fit = fit_stokes_pixels(S0[rest], S1[rest], S2[rest], x0[rest], n2, n3, wl, iterations=iterations)
+    H = np.zeros((n, 3, 3))
+    cost = np.zeros(n)
+    x[rest], H[rest], cost[rest] = fit.x, fit.H, fit.cost
+    H[seeds], cost[seeds] = fs.H, fs.cost
+    t["fit"] = time.perf_counter() - t0
     # fits far above the noise started in a wrong order: restart them from their nearest
     # well-fitted pixel and from a coarse grid, keep the best
-    bad = cost > misfit * 3 * b * noise ** 2
-    t["fit"] = time.perf_counter() - t0
     t0 = time.perf_counter()
+    bad = cost > misfit * 3 * b * noise ** 2
     if bad.any() and (~bad).any():
-        img = np.full(mask.shape, -1, dtype=np.int64)
-        img[mask] = np.where(~bad, np.arange(n), -1)
-        _, (ir, ic) = ndimage.distance_transform_edt(img < 0, return_indices=True)
-        src = img[ir, ic][mask][bad]
+        src = _nearest(mask, ~bad)[bad]
         starts = [x[src]]
         th_g, d_g = _sf._init_no_peak(sp[bad], n2, n3, wl, x[src, 2])
         starts.append(angles_to_x(th_g, phi0[bad], d_g))
@@ -354,18 +419,25 @@ def reconstruct_stokes(stokes, wavelengths_nm, substrate_ior, mask, smoothness=2
             idx = np.nonzero(bad)[0][better]
             x[idx], H[idx], cost[idx] = f2.x[better], f2.H[better], f2.cost[better]
     # thickness varies smoothly over a film: where the spectrum leaves the order open (weak
-    # fringes, an index close to the substrate's), a pixel takes the one nearest the local
-    # median of its neighbours (a Gaussian prior, thickness_sigma_nm); pixels far from it
-    # start from it
+    # fringes, an index close to the substrate's), a pixel takes the order nearest the
+    # local median of its neighbours (a Gaussian prior of thickness_sigma_nm); pixels far
+    # from it start from it. Pixels whose own data fix the thickness much better than the
+    # prior and that agree with their neighbours are left as they are.
     d_img = np.full(mask.shape, np.nan)
     d_img[mask] = x[:, 2]
     d_med = _local_median(d_img, mask, 7)[mask]
     far = np.abs(x[:, 2] - d_med) > 2.0 * thickness_sigma_nm
-    x_start = x.copy()
-    x_start[far, 2] = d_med[far]
-    prior = (d_med, noise / thickness_sigma_nm)
-    f3 = fit_stokes_pixels(S0, S1, S2, x_start, n2, n3, wl, iterations=iterations, thickness_prior=prior)
-    x, H, cost = f3.x, f3.H, f3.aux
+    info_d = H[:, 2, 2] - np.einsum("ni,nij,nj->n", H[:, 2, :2], np.linalg.pinv(H[:, :2, :2]), H[:, :2, 2])
+    weak = info_d < 25.0 * (noise / thickness_sigma_nm) ** 2
+    redo = far | weak | (np.abs(x[:, 2] - d_med) > 0.5 * thickness_sigma_nm)
+    if redo.any():
+        x_start = x[redo].copy()
+        x_start[far[redo], 2] = d_med[redo][far[redo]]
+        prior = (d_med[redo], noise[redo] / thickness_sigma_nm)
+        f3 = fit_stokes_pixels(S0[redo], S1[redo], S2[redo], x_start, n2, n3, wl, iterations=iterations,
+                               thickness_prior=prior)
+        x[redo], H[redo], cost[redo] = f3.x, f3.H, f3.aux
+    t["prior_refit"] = int(redo.sum())
     t["refit"] = time.perf_counter() - t0
 
     # 3. one surface: the azimuth's sign for the whole object, then the normals integrated to
@@ -418,8 +490,14 @@ def reconstruct_stokes(stokes, wavelengths_nm, substrate_ior, mask, smoothness=2
     t["thickness"] = time.perf_counter() - t0
     thickness = np.full(mask.shape, np.nan)
     thickness[mask] = d_f
-    valid = mask & np.isfinite(thickness)
+    # pixels the model cannot explain (an inter-reflection in a concave part, a rim the
+    # light grazes) are reported invalid
+    chi2 = cost / (3 * b * noise ** 2)
+    explained = np.zeros(mask.shape, dtype=bool)
+    explained[mask] = chi2 < max_chi2
+    valid = mask & np.isfinite(thickness) & explained
     info = {"timings_s": t, **n2_info, "capture": "stokes", "refit_poor": int(bad.sum()),
+            "unexplained_pixels": int(np.sum(chi2 >= max_chi2)),
             "smoothness": smoothness}
     return Estimate(normals=out_n, thickness_nm=thickness, valid=valid, film_ior=float(n2),
                     substrate_ior=n3, height=height, info=info)
