@@ -57,7 +57,7 @@ _SHAPE_KEYS = {
     "ellipsoid": {"semi_axes": ("vec3_positive", [1.0, 0.7, 0.5]), "rotate_deg": ("vec3", [0.0, 0.0, 0.0])},
     "cap": {"radius": ("positive", 1.0), "height": ("positive", 0.5), "rotate_deg": ("vec3", [0.0, 0.0, 0.0])},
     "sheet": {"size": ("positive", 2.0), "amplitude": ("nonnegative", 0.12), "wavelength": ("positive", 1.0),
-              "direction_deg": ("number", 0.0), "phase_deg": ("number", 0.0), "cross": ("bool", False),
+              "direction_deg": ("number", 0.0), "phase_deg": ("number", 90.0), "cross": ("bool", False),
               "rotate_deg": ("vec3", [0.0, 0.0, 0.0])},
     "group": {"parts": ("parts", _REQUIRED)},
 }

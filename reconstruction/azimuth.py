@@ -129,7 +129,7 @@ def _outward(mask, smooth_px=1.5):
 
 
 def contour_anchors(o, theta, confidence, mask, steep_deg=70.0, hole_deg=45.0, band_px=2.0, cut_deg=45.0,
-                    cut_weight=0.1):
+                    cut_weight=0.1, centre_weight=0.5, centre_fraction=0.5):
     """Unary terms ``h`` (H, W): evidence for the sign of each pixel's representative ``o``
     from occluding contours (positive: ``o`` itself points the right way).
 
@@ -139,7 +139,9 @@ def contour_anchors(o, theta, confidence, mask, steep_deg=70.0, hole_deg=45.0, b
       (a hole of dark, near-normal pixels, such as the camera's hole in the lighting
       dome, has no occluding edge);
     * steep pixels inside the object (``θ >= steep_deg``) vote for the direction in which
-      the (smoothed) zenith grows.
+      the (smoothed) zenith grows;
+    * every pixel near the middle of its connected part (Gaussian weight, ``centre_fraction``
+      of the part's RMS radius) votes, weakly, for pointing away from the part's centre.
     """
     m = np.asarray(mask, dtype=bool)
     th = np.where(m, np.nan_to_num(theta), 0.0)
@@ -170,6 +172,21 @@ def contour_anchors(o, theta, confidence, mask, steep_deg=70.0, hole_deg=45.0, b
     inner = m & ~edge & (th >= np.radians(steep_deg)) & (gn > 1e-6)
     cosg = np.sum(a * grad, axis=-1) / np.maximum(gn, 1e-12)
     h[inner] = (s2 * cosg)[inner]
+    # and, weaker still, the middle of each part bulges towards the camera: its normals point
+    # away from the part's centre (what decides a wavy sheet, which has no occluding contour
+    # and whose edges may cut its waves anywhere)
+    labels, count = ndimage.label(m)
+    if count:
+        r, c = np.nonzero(m)
+        lab = labels[r, c] - 1
+        cnt = np.bincount(lab, minlength=count)
+        cr, cc = np.bincount(lab, r, count) / cnt, np.bincount(lab, c, count) / cnt
+        dx, dy = c - cc[lab], -(r - cr[lab])
+        rad = np.sqrt(np.bincount(lab, dx * dx + dy * dy, count) / cnt)[lab]
+        dist = np.hypot(dx, dy)
+        w = np.exp(-0.5 * (dist / np.maximum(centre_fraction * rad, 1.0)) ** 2)
+        radial = (a[r, c, 0] * dx + a[r, c, 1] * dy) / np.maximum(dist, 1e-9)
+        h[r, c] += centre_weight * cut_weight * s2[r, c] * radial * w
     return h * np.clip(confidence, 0.0, None)
 
 

@@ -59,9 +59,40 @@ def _local_median(values, mask, size: int = 5):
     return np.where(np.isfinite(med), med, values)
 
 
+def _choose_basins(fit, cand_pix, cand, mask, sigma, thickness_sigma_nm):
+    """Each pixel's candidate (thickness basin) chosen jointly with its neighbours'
+    (:func:`.candidates.choose_smooth`); returns a :class:`~.rgb_invert.PixelFit`."""
+    from .candidates import choose_smooth
+    from .rgb_invert import PixelFit
+
+    n = fit.cost.size
+    order = np.argsort(cand_pix, kind="stable")
+    pix = cand_pix[order]
+    start = np.searchsorted(pix, np.arange(n))
+    slot = np.arange(pix.size) - start[pix]
+    K = int(slot.max()) + 1 if pix.size else 1
+    if K == 1:
+        return fit
+    values = np.full((n, K), np.nan)
+    costs = np.full((n, K), np.inf)
+    values[pix, slot] = cand.thickness_nm[order]
+    costs[pix, slot] = cand.data_cost[order] / sigma ** 2
+    choice = choose_smooth(values, costs, mask, thickness_sigma_nm)
+    chosen = np.full((n, K), -1, dtype=np.int64)
+    chosen[pix, slot] = order
+    sel = chosen[np.arange(n), choice]
+    keep = sel < 0
+    sel = np.where(keep, 0, sel)
+    out = PixelFit(*(np.where(keep.reshape((-1,) + (1,) * (np.ndim(getattr(fit, name)) - 1)),
+                              getattr(fit, name), getattr(cand, name)[sel])
+                     for name in ("zenith_deg", "azimuth_deg", "thickness_nm", "cost", "info", "data_cost")))
+    return out
+
+
 def reconstruct_coherent(capture: RGBCapture, progress: bool = False, rounds: int = 1,
                          normal_prior_sigma: float = 0.01, thickness_prior_sigma_nm: float = 15.0,
-                         smoothness: float = 2.0) -> Estimate:
+                         smoothness: float = 2.0, thickness_smoothness_nm: float = 10.0,
+                         max_chi2: float = 50.0, robust_prior: bool = True) -> Estimate:
     """Joint per-pixel inversion of the coherent model, then surface consistency.
 
     Parameters
@@ -91,9 +122,15 @@ def reconstruct_coherent(capture: RGBCapture, progress: bool = False, rounds: in
     table = build_table(model, rng_nm)
     timings["table"] = time.perf_counter() - t
     t = time.perf_counter()
-    fit = invert_pixels(model, I_obs, angles, rng_nm, table=table)
+    fit, (cand_pix, cand) = invert_pixels(model, I_obs, angles, rng_nm, table=table, return_candidates=True)
     timings["per_pixel"] = time.perf_counter() - t
     bar.update(2)
+    # where several thicknesses fit a pixel about as well (weak fringes), the choice is made
+    # for all pixels together: the film's thickness is smooth
+    t = time.perf_counter()
+    sigma0 = max(float(np.sqrt(np.median(fit.cost) / max(3 * K - 3, 1))), 1e-12)
+    fit = _choose_basins(fit, cand_pix, cand, mask, sigma0, thickness_smoothness_nm)
+    timings["basins"] = time.perf_counter() - t
 
     t = time.perf_counter()
     # Noise level of the data, from the residuals (robust; dof = 3K - 3).
@@ -124,9 +161,16 @@ def reconstruct_coherent(capture: RGBCapture, progress: bool = False, rounds: in
         height = integrate_normals(normals, mask, weights, smoothness=smoothness)
         n_surf = height_to_normals(height, mask)
         d_med = _local_median(thick, mask)
+        # where confident data disagree with the surface by more than 3 of their standard
+        # deviations, the surface is wrong there (a tube's curvature the smoothness flattens):
+        # its prior loosens in proportion
+        n_dat = normals[mask][:, :2]
+        diff = n_surf[mask][:, :2] - n_dat
+        d2 = np.einsum("ni,nij,nj->n", diff, info_n, diff)
+        loosen = np.maximum(1.0, np.sqrt(np.maximum(d2, 0.0)) / 3.0) if robust_prior else np.ones(N)
         prior = PixelPrior(
             normal_xy=n_surf[mask][:, :2],
-            normal_weight=np.full(N, sigma / normal_prior_sigma),
+            normal_weight=sigma / normal_prior_sigma / loosen,
             thickness_nm=d_med[mask],
             thickness_weight=np.full(N, sigma / thickness_prior_sigma_nm))
         # Start from the current estimate, on the surface's side; thickness outliers restart
@@ -154,7 +198,7 @@ def reconstruct_coherent(capture: RGBCapture, progress: bool = False, rounds: in
     # Pixels whose final fit to the data (priors left out) is far worse than the noise are
     # reported as invalid.
     chi2 = cost / (sigma ** 2 * max(3 * K - 3, 1))
-    ok = np.isfinite(chi2) & (chi2 < 50.0)
+    ok = np.isfinite(chi2) & (chi2 < max_chi2)
     valid = np.zeros(mask.shape, dtype=bool)
     valid[mask] = ok
     info = {**capture.info, "timings_s": timings, "noise_sigma": sigma,
