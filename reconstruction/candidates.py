@@ -33,7 +33,7 @@ __all__ = ["choose_smooth"]
 _MISSING = 1e9
 
 
-def choose_smooth(values, costs, mask, sigma, truncation=8.0, iterations=40, damping=0.5):
+def choose_smooth(values, costs, mask, sigma, truncation=8.0, iterations=25, damping=0.5):
     """Index of the chosen candidate per mask pixel (in the order of ``mask``'s pixels).
 
     Parameters
@@ -60,40 +60,55 @@ def choose_smooth(values, costs, mask, sigma, truncation=8.0, iterations=40, dam
     vals = np.where(missing, 0.0, values)
     if k == 1 or n == 0:
         return np.zeros(n, dtype=np.int64)
+    # a pixel whose best candidate beats its others by more than its four neighbours could
+    # ever pay is decided by its own data; the others are chosen by belief propagation among
+    # themselves, their decided neighbours entering as fixed terms
+    best = np.argmin(U, axis=1)
+    second = np.partition(U, 1, axis=1)[:, 1]
+    open_ = second <= 4.0 * truncation
+    if not open_.any():
+        return best
     H, W = mask.shape
     index = np.full((H, W), -1, dtype=np.int64)
     index[mask] = np.arange(n)
     r, c = np.nonzero(mask)
-    # neighbour of every pixel in each direction (-1: none); opposite directions pair up
     steps = ((-1, 0), (1, 0), (0, -1), (0, 1))
     opposite = (1, 0, 3, 2)
+    sub = np.nonzero(open_)[0]
+    m = sub.size
+    local = np.full(n, -1, dtype=np.int64)
+    local[sub] = np.arange(m)
+    Us = U[sub].copy()
     nbr = []
-    for dr, dc in steps:
-        rr, cc = r + dr, c + dc
-        ok = (rr >= 0) & (rr < H) & (cc >= 0) & (cc < W)
-        j = np.full(n, -1, dtype=np.int64)
-        j[ok] = index[rr[ok], cc[ok]]
-        nbr.append(j)
-    # pairwise penalties between a pixel's candidates and each neighbour's: (N, K, K)
     pair = []
-    for j in nbr:
+    for dr, dc in steps:
+        rr, cc = r[sub] + dr, c[sub] + dc
+        ok = (rr >= 0) & (rr < H) & (cc >= 0) & (cc < W)
+        j = np.full(m, -1, dtype=np.int64)
+        j[ok] = index[rr[ok], cc[ok]]
         jj = np.maximum(j, 0)
-        d = (vals[:, :, None] - vals[jj][:, None, :]) / sigma
+        d = (vals[sub][:, :, None] - vals[jj][:, None, :]) / sigma
         V = np.minimum(0.5 * d * d, truncation)
-        V = np.where(missing[:, :, None] | missing[jj][:, None, :], truncation, V)
+        V = np.where(missing[sub][:, :, None] | missing[jj][:, None, :], truncation, V)
+        fixed = (j >= 0) & ~open_[jj]
+        # a decided neighbour: the penalty against its chosen candidate
+        Us += np.where(fixed[:, None], V[np.arange(m), :, best[jj]], 0.0)
+        nbr.append(np.where((j >= 0) & open_[jj], local[jj], -1))
         pair.append(V)
-    msgs = [np.zeros((n, k)) for _ in steps]          # msgs[d][i]: into i from its d-neighbour
+    msgs = [np.zeros((m, k)) for _ in steps]          # msgs[d][i]: into i from its d-neighbour
     for _ in range(iterations):
-        total = U + sum(msgs)
+        total = Us + sum(msgs)
         new = []
         for d, j in enumerate(nbr):
             has = j >= 0
             jj = np.maximum(j, 0)
             # what the neighbour j knows, less what i told it (i is j's opposite neighbour)
             h = total[jj] - msgs[opposite[d]][jj]
-            m = np.min(pair[d] + h[:, None, :], axis=2)
-            m = m - m.min(axis=1, keepdims=True)
-            m = np.where(has[:, None], m, 0.0)
-            new.append(damping * msgs[d] + (1.0 - damping) * m)
+            mm = np.min(pair[d] + h[:, None, :], axis=2)
+            mm = mm - mm.min(axis=1, keepdims=True)
+            mm = np.where(has[:, None], mm, 0.0)
+            new.append(damping * msgs[d] + (1.0 - damping) * mm)
         msgs = new
-    return np.argmin(U + sum(msgs), axis=1)
+    out = best.copy()
+    out[sub] = np.argmin(Us + sum(msgs), axis=1)
+    return out

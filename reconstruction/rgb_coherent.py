@@ -5,13 +5,18 @@
   (:mod:`.rgb_invert`: a k-d tree search over (zenith, thickness) then Levenberg–Marquardt,
   both on a bicubic spline of the model tabulated once from the optics core,
   :class:`~.rgb_model.FilmTable`);
-* makes the normal field consistent with one surface: the 180° ambiguity is seeded at the
-  occluding boundary as in the paper, then the normals are integrated to a height map on the
+* where several thickness basins fit a pixel about as well (weak fringes), chooses among
+  them for all pixels together, the film's thickness being smooth
+  (:func:`.candidates.choose_smooth`);
+* makes the normal field consistent with one surface: the 180° ambiguity is resolved for the
+  whole object at once (occluding contours outer and inner, ridges, creases:
+  :mod:`.azimuth`), then the normals are integrated to a height map on the
   mask (confidence-weighted Poisson with a small curvature penalty, :mod:`.surface`), and
   every pixel is re-fitted with a Gaussian prior towards the surface's normal (which fixes
   the sign of the azimuth, and the zenith where polarization is weak, near normal incidence)
   and towards the local median thickness (which fixes pixels that fell into a neighbouring
-  thickness basin);
+  thickness basin); the prior on the normal loosens where confident data disagree with the
+  surface (a tube's curvature that the smoothness flattens);
 * exports the final height field as ``surface.ply``.
 """
 
@@ -90,9 +95,9 @@ def _choose_basins(fit, cand_pix, cand, mask, sigma, thickness_sigma_nm):
 
 
 def reconstruct_coherent(capture: RGBCapture, progress: bool = False, rounds: int = 1,
-                         normal_prior_sigma: float = 0.01, thickness_prior_sigma_nm: float = 15.0,
+                         normal_prior_sigma: float = 0.01, thickness_prior_sigma_nm: float = 8.0,
                          smoothness: float = 2.0, thickness_smoothness_nm: float = 10.0,
-                         max_chi2: float = 50.0, robust_prior: bool = True) -> Estimate:
+                         max_chi2: float = 50.0, robust_prior: bool = True, median_window: int = 9) -> Estimate:
     """Joint per-pixel inversion of the coherent model, then surface consistency.
 
     Parameters
@@ -102,8 +107,15 @@ def reconstruct_coherent(capture: RGBCapture, progress: bool = False, rounds: in
     normal_prior_sigma : σ of the prior on each normal's image-plane part around the
         integrated surface's normal (unitless; 0.01 ≈ 0.6° near normal incidence). Where the
         polarization data are confident (zenith beyond ~20°) they outweigh it.
-    thickness_prior_sigma_nm : σ of the prior on thickness around its 5 × 5 local median.
+    thickness_prior_sigma_nm : σ of the prior on thickness around its local median
+        (``median_window`` pixels square).
     smoothness : curvature penalty of the height integration (relative to the mean weight).
+    thickness_smoothness_nm : scale of the neighbour penalty when the thickness basins are
+        chosen jointly (:func:`.candidates.choose_smooth`).
+    max_chi2 : pixels whose final fit is worse than this (in units of the noise, per degree
+        of freedom) are reported invalid.
+    robust_prior : loosen the surface prior where confident data disagree with it.
+    median_window : side of the window of the local median thickness.
     """
     from .rgb_invert import PixelPrior, build_table, invert_pixels, refine_pixels
     from .surface import height_to_normals, integrate_normals
@@ -160,7 +172,7 @@ def reconstruct_coherent(capture: RGBCapture, progress: bool = False, rounds: in
         weights = np.where(mask, w_n * nz ** 4, 0.0)
         height = integrate_normals(normals, mask, weights, smoothness=smoothness)
         n_surf = height_to_normals(height, mask)
-        d_med = _local_median(thick, mask)
+        d_med = _local_median(thick, mask, median_window)
         # where confident data disagree with the surface by more than 3 of their standard
         # deviations, the surface is wrong there (a tube's curvature the smoothness flattens):
         # its prior loosens in proportion
@@ -178,7 +190,7 @@ def reconstruct_coherent(capture: RGBCapture, progress: bool = False, rounds: in
         d0 = thick[mask]
         far = np.abs(d0 - d_med[mask]) > 3 * thickness_prior_sigma_nm
         d0 = np.where(far, d_med[mask], d0)
-        refit = refine_pixels(table, I_obs, angles, zen[mask], d0, az[mask], prior=prior)
+        refit = refine_pixels(table, I_obs, angles, zen[mask], d0, az[mask], prior=prior, iterations=20)
         phi = np.radians(refit.azimuth_deg)
         dot = n_surf[mask][:, 0] * np.cos(phi) + n_surf[mask][:, 1] * np.sin(phi)
         az_new = np.mod(refit.azimuth_deg + np.where(dot < 0, 180.0, 0.0), 360.0)

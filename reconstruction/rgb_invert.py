@@ -105,7 +105,7 @@ class PixelPrior:
 
 def build_table(model: FilmCamera, thickness_range_nm, zenith_max_deg: float = 89.0,
                 zenith_step_deg: float = 1.0, thickness_step_nm: float = 6.0,
-                refine_zenith_max_deg: float = 89.5, phase_step_rad: float = 0.35) -> InversionTable:
+                refine_zenith_max_deg: float = 89.5, phase_step_rad: float = 0.7) -> InversionTable:
     """Tabulate the model for :func:`invert_pixels`.
 
     The spline table (one pass of the optics core over its grid) covers zenith up to
@@ -352,7 +352,7 @@ def invert_pixels(model: FilmCamera, I_obs, angles_deg, thickness_range_nm, tabl
     floor = np.median(best_cost)
     go = cost[pix, cand] <= competitive_ratio * (best_cost[pix] + floor)
     pix, cand = pix[go], cand[go]
-    fit = refine(pix, cand, fit.zenith_deg[go], fit.thickness_nm[go], fit.azimuth_deg[go], 40)
+    fit = refine(pix, cand, fit.zenith_deg[go], fit.thickness_nm[go], fit.azimuth_deg[go], 20)
     order = np.lexsort((fit.cost, pix))                      # by pixel, then cost
     first = np.ones(order.size, dtype=bool)
     first[1:] = pix[order][1:] != pix[order][:-1]
