@@ -129,7 +129,7 @@ def _outward(mask, smooth_px=1.5):
 
 
 def contour_anchors(o, theta, confidence, mask, steep_deg=70.0, hole_deg=45.0, band_px=2.0, cut_deg=45.0,
-                    cut_weight=0.1, centre_weight=0.5, centre_fraction=0.5):
+                    cut_weight=0.1, centre_weight=3.0, centre_fraction=0.5):
     """Unary terms ``h`` (H, W): evidence for the sign of each pixel's representative ``o``
     from occluding contours (positive: ``o`` itself points the right way).
 
