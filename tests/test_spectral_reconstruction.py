@@ -178,10 +178,14 @@ def test_published_method_on_a_noiseless_hemisphere():
     assert est.info["peaks"]["peak_none"] > 0  # the rim has no peak in range: recorded
 
 
-def test_film_index_above_substrate_is_reported():
-    cube, mask, _ = _hemisphere(n2=1.8, n3=1.6)
-    with pytest.raises(UserError, match="n2 < n3"):
-        reconstruct_spectral(cube, WL, N3)
+def test_film_index_above_substrate_default_estimates_it_paper_refuses():
+    cube, mask, normals = _hemisphere(n2=1.8, n3=1.6)
+    est = reconstruct_spectral(cube, WL, N3)
+    assert est.film_ior == pytest.approx(1.8, abs=2e-3) and est.info["film_ior_above_substrate"]
+    assert np.median(np.abs(est.thickness_nm[mask] - 400.0)) < 0.5
+    with pytest.raises(UserError, match="n2 < n3") as e:
+        reconstruct_spectral(cube, WL, N3, method=spectral_paper.reconstruct_kobayashi)
+    assert "\n" not in str(e.value)
 
 
 BAD_ARRAY_MESSAGES = {
