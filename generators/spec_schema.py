@@ -50,13 +50,13 @@ _SHAPE_KEYS = {
     "pyramid": {"base": ("length", 2.0), "height": ("length", 0.6)},
     "mesh": {"path": ("file", _REQUIRED), "scale": ("length", 1.0),
              "rotate_deg": ("vec3", [0.0, 0.0, 0.0]), "smooth": ("bool", True)},
-    "torus": {"major_radius": ("positive", 1.0), "minor_radius": ("positive", 0.35),
+    "torus": {"major_radius": ("length", 1.0), "minor_radius": ("length", 0.35),
               "rotate_deg": ("vec3", [0.0, 0.0, 0.0])},
-    "capsule": {"radius": ("positive", 0.5), "length": ("positive", 1.5),
+    "capsule": {"radius": ("length", 0.5), "length": ("length", 1.5),
                 "rotate_deg": ("vec3", [0.0, 0.0, 0.0])},
-    "ellipsoid": {"semi_axes": ("vec3_positive", [1.0, 0.7, 0.5]), "rotate_deg": ("vec3", [0.0, 0.0, 0.0])},
-    "cap": {"radius": ("positive", 1.0), "height": ("positive", 0.5), "rotate_deg": ("vec3", [0.0, 0.0, 0.0])},
-    "sheet": {"size": ("positive", 2.0), "amplitude": ("nonnegative", 0.12), "wavelength": ("positive", 1.0),
+    "ellipsoid": {"semi_axes": ("lengths3", [1.0, 0.7, 0.5]), "rotate_deg": ("vec3", [0.0, 0.0, 0.0])},
+    "cap": {"radius": ("length", 1.0), "height": ("length", 0.5), "rotate_deg": ("vec3", [0.0, 0.0, 0.0])},
+    "sheet": {"size": ("length", 2.0), "amplitude": ("amplitude", 0.12), "wavelength": ("length", 1.0),
               "direction_deg": ("number", 0.0), "phase_deg": ("number", 90.0), "cross": ("bool", False),
               "rotate_deg": ("vec3", [0.0, 0.0, 0.0])},
     "group": {"parts": ("parts", _REQUIRED)},
@@ -197,13 +197,27 @@ class Checker:
             if not isinstance(value, list) or len(value) != 3:
                 self.fail(where, "a list of 3 numbers", value)
             return [self.number(where, v) for v in value]
-        if kind == "vec3_positive":
+        if kind == "lengths3":
+            lo, hi = LIMITS["length"]
+            expected = f"a list of 3 lengths in scene units from {lo:g} to {hi:g}"
             if not isinstance(value, list) or len(value) != 3:
-                self.fail(where, "a list of 3 numbers > 0", value)
+                self.fail(where, expected, value)
             out = [self.number(where, v) for v in value]
-            if min(out) <= 0:
-                self.fail(where, "a list of 3 numbers > 0", value)
+            if not all(lo <= v <= hi for v in out):
+                self.fail(where, expected, value)
             return out
+        if kind == "offset":
+            lo, hi = LIMITS["length"]
+            if not isinstance(value, list) or len(value) != 3:
+                self.fail(where, f"a list of 3 numbers (scene units, at most {hi:g} across)", value)
+            out = [self.number(where, v) for v in value]
+            if max(abs(v) for v in out) > hi:
+                self.fail(where, f"a list of 3 numbers (scene units, at most {hi:g} across)", value)
+            return out
+        if kind == "amplitude":
+            if value == 0:
+                return 0.0
+            return self.bounded(where, value, "length", "0 or a length in scene units")
         if kind == "number":
             return self.number(where, value)
         if kind == "parts":
@@ -345,7 +359,7 @@ class Checker:
             kind = part.get("kind")
             if kind not in _PART_KINDS:
                 self.fail(f"{here}.kind", f"one of {', '.join(_PART_KINDS)}", kind)
-            schema = dict(_SHAPE_KEYS[kind], offset=("vec3", [0.0, 0.0, 0.0]))
+            schema = dict(_SHAPE_KEYS[kind], offset=("offset", [0.0, 0.0, 0.0]))
             parts.append(self.table(here, part, schema, {"kind": kind}))
         return parts
 

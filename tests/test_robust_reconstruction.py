@@ -151,7 +151,7 @@ def test_group_specs_validate_and_round_trip(tmp_path):
         load_spec({"shape": {"kind": "group", "parts": [{"kind": "mesh"}]}})
     with pytest.raises(UserError, match=r"'shape.parts' must be a list of shape tables"):
         load_spec({"shape": {"kind": "group", "parts": []}})
-    with pytest.raises(UserError, match=r"'shape.semi_axes' must be a list of 3 numbers > 0"):
+    with pytest.raises(UserError, match=r"'shape.semi_axes' must be a list of 3 lengths in scene units"):
         load_spec({"shape": {"kind": "ellipsoid", "semi_axes": [1.0, 0.0, 1.0]}})
 
 
