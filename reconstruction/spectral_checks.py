@@ -15,14 +15,18 @@ from thinfilm.core.errors import UserError
 from .masks import mask_from_intensity
 from .peaks import PEAK_NONE, PEAK_OK, PEAK_SEVERAL, find_peaks
 
-__all__ = ["MIN_BANDS", "check_cube", "object_mask", "check_peak_assumption", "check_dielectric_substrate",
+__all__ = ["MIN_BANDS", "check_cube", "object_mask", "object_mask_stokes", "check_peak_assumption", "check_dielectric_substrate",
            "peaks_of"]
 
 MIN_BANDS = 10
 
 
 def check_cube(cube, wavelengths_nm, where="spectral_s"):
-    cube = np.asarray(cube, dtype=np.float64)
+    """The cube (as given, a float array: NumPy converts pixels when they are used) and the
+    wavelengths (float64), checked: shape, band count, increasing bands, finite values."""
+    cube = np.asarray(cube)
+    if not np.issubdtype(cube.dtype, np.floating):
+        cube = cube.astype(np.float64)
     wl = np.asarray(wavelengths_nm, dtype=np.float64)
     if cube.ndim != 3:
         raise UserError(f"{where}: expected an (H, W, bands) cube, got shape {cube.shape}")
@@ -41,6 +45,15 @@ def object_mask(cube):
     """Object pixels of a spectral cube against its dark background: the project's intensity
     mask (:func:`thinfilm.reconstruction.masks.mask_from_intensity`) of the band mean."""
     return mask_from_intensity(np.asarray(cube).mean(axis=2))
+
+
+def object_mask_stokes(stokes):
+    """:func:`object_mask` of the s-polarized cube a Stokes cube gives (``S0 + |S1, S2|``,
+    what a rotating-polarizer camera records as ``spectral_s``), from its band mean."""
+    s = np.zeros(np.shape(stokes["S0"])[:2])
+    for b in range(np.shape(stokes["S0"])[2]):
+        s += np.asarray(stokes["S0"][..., b], dtype=np.float64) + np.hypot(stokes["S1"][..., b], stokes["S2"][..., b])
+    return mask_from_intensity(s / np.shape(stokes["S0"])[2])
 
 
 def check_peak_assumption(spectra, wavelengths_nm, substrate_ior):

@@ -59,7 +59,7 @@ def reconstruct_eikonal(cube, wavelengths_nm, substrate_ior, mask, smoothness=10
     # holds is read from the spectra: the extrema at the bare substrate's reflectance are
     # maxima below it, minima above it)
     t0 = time.perf_counter()
-    spectra = np.asarray(cube, dtype=np.float64)[mask]
+    spectra = np.asarray(np.asarray(cube)[mask], dtype=np.float64)
     n2, n2_info = estimate_film_ior_either_side(spectra, wl, n3)
     t["film_ior"] = time.perf_counter() - t0
     t0 = time.perf_counter()

@@ -37,7 +37,7 @@ __all__ = ["U_MAX", "stokes_model", "stokes_normal_equations", "fit_stokes_pixel
 #: largest ``u = sin² θ`` a fit may reach (θ = 89.5°)
 U_MAX = float(np.sin(np.radians(89.5)) ** 2)
 _U_EPS = 1e-9
-_CHUNK_LANES = 1 << 19  # pixels × bands of one Dr.Jit evaluation of the normal equations
+_CHUNK_LANES = 1 << 18  # pixels × bands of one Dr.Jit evaluation of the normal equations
 
 
 def angles_to_x(theta_rad, phi_rad, thickness_nm):
@@ -293,7 +293,7 @@ def fit_stokes_pixels(S0, S1, S2, x0, film_ior, substrate_ior, wavelengths_nm, w
 
     return levenberg_marquardt(project(np.array(x0, dtype=np.float64)), normal_equations, iterations,
                                project=project, max_step=[max_step_u, max_step_u, max_step_nm],
-                               step_tol=[1e-5, 1e-5, 0.05], lam0=1e-3, lam_down=1.0 / 3.0, lam_up=5.0,
+                               step_tol=[3e-5, 3e-5, 0.1], lam0=1e-3, lam_down=1.0 / 3.0, lam_up=5.0,
                                floor_rel=1e-9, floor_abs=1e-18)
 
 
@@ -318,6 +318,32 @@ def _nearest(mask, which):
     img[mask] = np.where(which, np.arange(which.size), -1)
     _, (ir, ic) = ndimage.distance_transform_edt(img < 0, return_indices=True)
     return img[ir, ic][mask]
+
+
+def _interpolate_seeds(mask, seeds, *values, radius=2.0):
+    """Per mask pixel, the Gaussian-weighted mean (σ = ``radius`` px) of each of ``values``
+    over the seeds within reach, where the seeds' values agree; the nearest seed's value
+    elsewhere (a pixel between seeds of two surfaces, or far from any seed)."""
+    from scipy import ndimage
+
+    w = np.zeros(mask.shape)
+    w[mask] = seeds
+    den = ndimage.gaussian_filter(w, radius, truncate=2.0)
+    src = _nearest(mask, seeds)
+    out = []
+    for v in values:
+        img = np.zeros(mask.shape)
+        img[mask] = np.where(seeds, v, 0.0)
+        mean = ndimage.gaussian_filter(img, radius, truncate=2.0)[mask] / np.maximum(den[mask], 1e-12)
+        sq = np.zeros(mask.shape)
+        sq[mask] = np.where(seeds, v * v, 0.0)
+        var = ndimage.gaussian_filter(sq, radius, truncate=2.0)[mask] / np.maximum(den[mask], 1e-12) - mean ** 2
+        near = v[src]
+        # the seeds around a pixel disagree (an edge, another order): the nearest one
+        spread = np.sqrt(np.maximum(var, 0.0))
+        agree = (den[mask] > 1e-3) & (spread < 0.05 * np.maximum(np.abs(mean), 1e-9) + 1e-9)
+        out.append(np.where(agree, mean, near))
+    return out
 
 
 def _local_median(values, mask, size):
@@ -394,9 +420,9 @@ def reconstruct_stokes(stokes, wavelengths_nm, substrate_ior, mask, smoothness=2
         good_seed[seeds] = True
     x = np.zeros((n, 3))
     x[seeds] = fs.x
-    src = _nearest(mask, good_seed)
-    th_s, _, d_s2 = x_to_angles(x[src])
-    x0 = angles_to_x(th_s, phi0, d_s2)
+    th_s, _, d_s2 = x_to_angles(x)
+    th_i, d_i = _interpolate_seeds(mask, good_seed, th_s, d_s2)
+    x0 = angles_to_x(th_i, phi0, d_i)
     rest = np.nonzero(~is_seed)[0]
     fit = fit_stokes_pixels(S0[rest], S1[rest], S2[rest], x0[rest], n2, n3, wl, iterations=iterations)
     H = np.zeros((n, 3, 3))
