@@ -50,10 +50,9 @@ def object_mask(cube):
 def object_mask_stokes(stokes):
     """:func:`object_mask` of the s-polarized cube a Stokes cube gives (``S0 + |S1, S2|``,
     what a rotating-polarizer camera records as ``spectral_s``), from its band mean."""
-    s = np.zeros(np.shape(stokes["S0"])[:2])
-    for b in range(np.shape(stokes["S0"])[2]):
-        s += np.asarray(stokes["S0"][..., b], dtype=np.float64) + np.hypot(stokes["S1"][..., b], stokes["S2"][..., b])
-    return mask_from_intensity(s / np.shape(stokes["S0"])[2])
+    s0 = np.asarray(stokes["S0"])
+    s = s0.mean(axis=2, dtype=np.float64) + np.hypot(stokes["S1"], stokes["S2"]).mean(axis=2, dtype=np.float64)
+    return mask_from_intensity(s)
 
 
 def check_peak_assumption(spectra, wavelengths_nm, substrate_ior):

@@ -348,8 +348,8 @@ def estimate_film_ior_either_side(spectra, wavelengths_nm, substrate_ior, max_pi
         grid = _film_ior_grid(substrate_ior, above, coarse_step)
         if grid.size == 0:
             continue
-        total, _ = _pooled_search(S, t, lam, substrate_ior, wl, grid)
-        g0 = float(grid[int(np.argmin(total))])
+        coarse, _ = _pooled_search(S, t, lam, substrate_ior, wl, grid)
+        g0 = float(grid[int(np.argmin(coarse))])
         fine = _film_ior_grid(substrate_ior, above, 0.01)
         fine = fine[np.abs(fine - g0) <= coarse_step + 1e-9]
         total, d_best = _pooled_search(S, t, lam, substrate_ior, wl, fine)
@@ -393,19 +393,14 @@ def _init_no_peak(S, n2, n3, wl, d_guess):
     thetas = np.radians(np.arange(0.0, 89.0, 3.0))
     offs = np.arange(-60.0, 60.1, 15.0)
     n = S.shape[0]
-    best_t = np.zeros(n)
-    best_d = np.array(d_guess, dtype=np.float64)
-    best_e = np.full(n, np.inf)
-    dd = np.maximum(best_d[:, None] + offs[None, :], 0.0)
-    for t_ in thetas:
-        e = _sm.grid_sse(S, np.full(n, t_), dd, np.full(dd.shape, n2), n3, wl)
-        k = np.argmin(e, axis=1)
-        ek = e[np.arange(n), k]
-        better = ek < best_e
-        best_e = np.where(better, ek, best_e)
-        best_t = np.where(better, t_, best_t)
-        best_d = np.where(better, dd[np.arange(n), k], best_d)
-    return best_t, best_d
+    t_n = thetas.size
+    dd = np.maximum(np.asarray(d_guess, dtype=np.float64)[:, None] + offs[None, :], 0.0)
+    # every (pixel, angle) pair as one row: one evaluation of the whole grid
+    rows = np.repeat(np.arange(n), t_n)
+    e = _sm.grid_sse(S[rows], np.tile(thetas, n), dd[rows], np.full((rows.size, offs.size), n2), n3, wl)
+    e = e.reshape(n, t_n * offs.size)
+    k = np.argmin(e, axis=1)
+    return thetas[k // offs.size], dd[np.arange(n), k % offs.size]
 
 
 def _fit_no_peak(spectra, mask, has, th_fit, d_fit, n2, n3, wl, stokes_noise, misfit=3.0, which=None):

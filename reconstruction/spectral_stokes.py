@@ -379,14 +379,21 @@ def reconstruct_stokes(stokes, wavelengths_nm, substrate_ior, mask, smoothness=2
     S0, S1, S2 = (np.asarray(np.asarray(stokes[k])[mask], dtype=np.float64) for k in ("S0", "S1", "S2"))
     n = S0.shape[0]
     phi0, _ = axis_from_stokes(S1, S2)
-    p = -(S1 * np.cos(2 * phi0)[:, None] + S2 * np.sin(2 * phi0)[:, None])   # P along the axis
-    sp = np.concatenate([S0 + p, S0 - p], axis=1)                           # R_s, R_p
+
+    def sp_of(rows):
+        """R_s and R_p spectra (s then p) of some pixels: S0 ± P along the azimuth's axis."""
+        c, s_ = np.cos(2 * phi0[rows])[:, None], np.sin(2 * phi0[rows])[:, None]
+        p_ = -(S1[rows] * c + S2[rows] * s_)
+        return np.concatenate([S0[rows] + p_, S0[rows] - p_], axis=1)
+
     noise = np.maximum(_band_noise(S0), 1e-9)
     t["prepare"] = time.perf_counter() - t0
 
-    # 1. the film index, once for the object, on either side of the substrate's
+    # 1. the film index, once for the object, on either side of the substrate's (from an even
+    # sample of the pixels)
     t0 = time.perf_counter()
-    n2, n2_info = _sf.estimate_film_ior_either_side(sp, wl, n3)
+    sample = np.unique(np.linspace(0, n - 1, min(n, 4000)).round().astype(np.int64))
+    n2, n2_info = _sf.estimate_film_ior_either_side(sp_of(sample), wl, n3)
     above = n2_info["film_ior_above_substrate"]
     t["film_ior"] = time.perf_counter() - t0
 
@@ -399,14 +406,16 @@ def reconstruct_stokes(stokes, wavelengths_nm, substrate_ior, mask, smoothness=2
     if grid.sum() < 50:
         grid = np.ones(n, dtype=bool)
     gi = np.nonzero(grid)[0]
-    pk, th_ext = _sf.extrema_angles(sp[gi, :b], wl, n3, above)
+    sp_g = sp_of(gi)
+    pk, th_ext = _sf.extrema_angles(sp_g[:, :b], wl, n3, above)
     ok = np.isfinite(th_ext)
     if not ok.any():
         gi = np.arange(n)
-        pk, th_ext = _sf.extrema_angles(sp[:, :b], wl, n3, above)
+        sp_g = sp_of(gi)
+        pk, th_ext = _sf.extrema_angles(sp_g[:, :b], wl, n3, above)
         ok = np.isfinite(th_ext)
     seeds = gi[ok]
-    d_s = _sf.initial_thickness(sp[seeds], th_ext[ok], pk.wavelength_nm[ok], n2, n3, wl)
+    d_s = _sf.initial_thickness(sp_g[ok], th_ext[ok], pk.wavelength_nm[ok], n2, n3, wl)
     t["init"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     fs = fit_stokes_pixels(S0[seeds], S1[seeds], S2[seeds], angles_to_x(th_ext[ok], phi0[seeds], d_s), n2, n3, wl,
@@ -437,7 +446,7 @@ def reconstruct_stokes(stokes, wavelengths_nm, substrate_ior, mask, smoothness=2
     if bad.any() and (~bad).any():
         src = _nearest(mask, ~bad)[bad]
         starts = [x[src]]
-        th_g, d_g = _sf._init_no_peak(sp[bad], n2, n3, wl, x[src, 2])
+        th_g, d_g = _sf._init_no_peak(sp_of(np.nonzero(bad)[0]), n2, n3, wl, x[src, 2])
         starts.append(angles_to_x(th_g, phi0[bad], d_g))
         for x_start in starts:
             f2 = fit_stokes_pixels(S0[bad], S1[bad], S2[bad], x_start, n2, n3, wl, iterations=iterations)
