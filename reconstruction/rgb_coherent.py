@@ -204,7 +204,7 @@ def reconstruct_coherent(capture: RGBCapture, progress: bool = False, rounds: in
     # where polarization says little.
     normals = angles_to_normals(zen, np.nan_to_num(az))
     nz = np.clip(normals[..., 2], 0.0, 1.0)
-    height = integrate_normals(normals, mask, np.where(mask, nz ** 2, 0.0), smoothness=0.05)
+    height = integrate_normals(normals, mask, np.where(mask, nz ** 2, 0.0), smoothness=0.05, max_direct=4096)
     timings["surface"] = time.perf_counter() - t
 
     # Pixels whose final fit to the data (priors left out) is far worse than the noise are
