@@ -303,7 +303,8 @@ class Dataset:
 
     @property
     def shape(self) -> tuple:
-        for img in (self.spectral_s, *self.polarized_rgb.values(), self.ground_truth.get("mask"), self.valid):
+        for img in (self.spectral_s, *self.polarized_rgb.values(), self.stokes.get("S0"), self.ground_truth.get("mask"),
+                    self.valid):
             if img is not None:
                 return tuple(img.shape[:2])
         raise UserError(f"{self.path}: dataset holds no image")

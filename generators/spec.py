@@ -292,8 +292,9 @@ def load_spec(spec_or_preset, overrides=(), resolution=None, seed=None) -> Scene
 
     Notes
     -----
-    A film index >= the substrate index gives a :class:`~thinfilm.core.errors.ThinfilmWarning`: the spectral
-    method assumes n_film < n_substrate (constructive-interference peaks). An absorbing
+    A film index >= the substrate index gives a :class:`~thinfilm.core.errors.ThinfilmWarning`: the paper's
+    methods assume n_film < n_substrate (constructive-interference peaks; the default methods
+    handle both). An absorbing
     substrate (``substrate.k > 0``) gives one too: ``spectral_s`` (S0 + sqrt(S1² + S2²)) is
     then max(R_s, R_p), which is R_s only on a dielectric substrate.
     """
@@ -333,8 +334,8 @@ def _warn_indices(spec: SceneSpec) -> None:
     n_film = spec.film.effective_index()
     n_sub = spec.film.effective_substrate_index()
     if n_film >= n_sub:
-        warnings.warn(f"film index {n_film:g} >= substrate index {n_sub:g}; the spectral reconstruction "
-                      f"assumes n_film < n_substrate", ThinfilmWarning, stacklevel=3)
+        warnings.warn(f"film index {n_film:g} >= substrate index {n_sub:g}; the paper's methods assume "
+                      f"n_film < n_substrate (the default methods handle both)", ThinfilmWarning, stacklevel=3)
     k_sub = float(spec.film.substrate.k)
     if k_sub > 0:
         warnings.warn(f"substrate k = {k_sub:g} > 0 (absorbing); spectral_s = S0 + sqrt(S1² + S2²) "

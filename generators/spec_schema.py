@@ -50,7 +50,19 @@ _SHAPE_KEYS = {
     "pyramid": {"base": ("length", 2.0), "height": ("length", 0.6)},
     "mesh": {"path": ("file", _REQUIRED), "scale": ("length", 1.0),
              "rotate_deg": ("vec3", [0.0, 0.0, 0.0]), "smooth": ("bool", True)},
+    "torus": {"major_radius": ("length", 1.0), "minor_radius": ("length", 0.35),
+              "rotate_deg": ("vec3", [0.0, 0.0, 0.0])},
+    "capsule": {"radius": ("length", 0.5), "length": ("length", 1.5),
+                "rotate_deg": ("vec3", [0.0, 0.0, 0.0])},
+    "ellipsoid": {"semi_axes": ("lengths3", [1.0, 0.7, 0.5]), "rotate_deg": ("vec3", [0.0, 0.0, 0.0])},
+    "cap": {"radius": ("length", 1.0), "height": ("length", 0.5), "rotate_deg": ("vec3", [0.0, 0.0, 0.0])},
+    "sheet": {"size": ("length", 2.0), "amplitude": ("amplitude", 0.12), "wavelength": ("length", 1.0),
+              "direction_deg": ("number", 0.0), "phase_deg": ("number", 90.0), "cross": ("bool", False),
+              "rotate_deg": ("vec3", [0.0, 0.0, 0.0])},
+    "group": {"parts": ("parts", _REQUIRED)},
 }
+#: shape kinds a ``group`` part may be
+_PART_KINDS = tuple(k for k in _SHAPE_KEYS if k not in ("mesh", "group"))
 
 _PROFILE_KEYS = {
     "uniform": {"value": ("thickness", 400.0)},
@@ -185,6 +197,31 @@ class Checker:
             if not isinstance(value, list) or len(value) != 3:
                 self.fail(where, "a list of 3 numbers", value)
             return [self.number(where, v) for v in value]
+        if kind == "lengths3":
+            lo, hi = LIMITS["length"]
+            expected = f"a list of 3 lengths in scene units from {lo:g} to {hi:g}"
+            if not isinstance(value, list) or len(value) != 3:
+                self.fail(where, expected, value)
+            out = [self.number(where, v) for v in value]
+            if not all(lo <= v <= hi for v in out):
+                self.fail(where, expected, value)
+            return out
+        if kind == "offset":
+            lo, hi = LIMITS["length"]
+            if not isinstance(value, list) or len(value) != 3:
+                self.fail(where, f"a list of 3 numbers (scene units, at most {hi:g} across)", value)
+            out = [self.number(where, v) for v in value]
+            if max(abs(v) for v in out) > hi:
+                self.fail(where, f"a list of 3 numbers (scene units, at most {hi:g} across)", value)
+            return out
+        if kind == "amplitude":
+            if value == 0:
+                return 0.0
+            return self.bounded(where, value, "length", "0 or a length in scene units")
+        if kind == "number":
+            return self.number(where, value)
+        if kind == "parts":
+            return self._parts(where, value)
         if kind == "axis":
             if value not in ("x", "y"):
                 self.fail(where, "\"x\" or \"y\"", value)
@@ -310,6 +347,21 @@ class Checker:
         if kind == "illuminant":
             return self._colour_name(where, value, "illuminant")
         raise AssertionError(kind)
+
+    def _parts(self, where, value):
+        if not isinstance(value, list) or not value:
+            self.fail(where, "a list of shape tables (each with a kind and an offset)", value)
+        parts = []
+        for i, part in enumerate(value):
+            here = f"{where}[{i}]"
+            if not isinstance(part, dict):
+                self.fail(here, "a table", part)
+            kind = part.get("kind")
+            if kind not in _PART_KINDS:
+                self.fail(f"{here}.kind", f"one of {', '.join(_PART_KINDS)}", kind)
+            schema = dict(_SHAPE_KEYS[kind], offset=("offset", [0.0, 0.0, 0.0]))
+            parts.append(self.table(here, part, schema, {"kind": kind}))
+        return parts
 
     def _colour_name(self, where, value, what):
         if not isinstance(value, str) or not value:

@@ -125,7 +125,7 @@ def seed_level(theta_rad, mask, contour_deg=70.0, smooth_px=1.5):
     return np.where(seeds, -0.5, 0.5), "silhouette"
 
 
-def fast_marching_height(slope, mask, phi):
+def fast_marching_height(slope, mask, phi, order=1):
     """Height field solving ``|∇z| = slope``: zero on the zero contour of ``phi``, rising where
     ``phi > 0`` and falling where ``phi < 0`` (scikit-fmm, first order).
 
@@ -152,7 +152,7 @@ def fast_marching_height(slope, mask, phi):
     phi = np.asarray(phi, dtype=np.float64)
     if not ((phi[m] < 0).any() and (phi[m] > 0).any()):
         raise ValueError("fast_marching_height: the level set has no zero contour inside the mask")
-    t = skfmm.travel_time(np.ma.MaskedArray(phi, ~m), 1.0 / s, dx=1.0, order=1)
+    t = skfmm.travel_time(np.ma.MaskedArray(phi, ~m), 1.0 / s, dx=1.0, order=order)
     z = np.ma.filled(t.astype(np.float64), np.nan)
     z = np.where(phi < 0, -z, z)
     z[~m] = np.nan
@@ -237,7 +237,8 @@ def _solve_spd(A, b):
     return lu.solve(b)
 
 
-def refine_height(z0, slope, weight, mask, smoothness=1.0, iterations=3, slope_cap=None):
+def refine_height(z0, slope, weight, mask, smoothness=1.0, iterations=3, slope_cap=None, direction_weight=0.0,
+                  anchors=None, anchor_weight=1.0):
     """Weighted Gauss-Newton refinement of a height field towards ``|∇z| = slope``.
 
     Minimises ``Σ_i w_i (|∇z|_i - s_i)² + smoothness Σ_i |∇²z|_i²`` over the mask, linearising
@@ -259,6 +260,15 @@ def refine_height(z0, slope, weight, mask, smoothness=1.0, iterations=3, slope_c
     slope_cap : float, optional
         Slopes above it are clipped (default tan 85°): finite differences cannot follow the
         surface at the occluding contour anyway.
+    direction_weight : float
+        Weight (relative to the data) of keeping the gradient's direction that of ``z0``:
+        the slope magnitudes say nothing about it, and without this term the thin plate
+        rounds the creases between flat faces (a pyramid turns into a cone).
+    anchors : (H, W) bool, optional
+        Pixels whose height stays that of ``z0`` (the fast march's start: an occluding
+        contour or a ground edge at one height), weighted ``anchor_weight`` times the mean
+        data weight: the boundary condition of the eikonal equation, without which a cone
+        fits a pyramid's slopes as well as the pyramid.
 
     Returns
     -------
@@ -277,6 +287,18 @@ def refine_height(z0, slope, weight, mask, smoothness=1.0, iterations=3, slope_c
     Gx, Gy = _difference_operators(index, m)
     L = _thin_plate(index, m)
     LtL = smoothness * (L.T @ L) + 1e-9 * sp.identity(n)
+    if direction_weight > 0:
+        p0, q0 = Gx @ z, Gy @ z
+        g0 = np.hypot(p0, q0)
+        ok0 = g0 > 1e-9
+        vx = np.where(ok0, -q0 / np.where(ok0, g0, 1.0), 0.0)
+        vy = np.where(ok0, p0 / np.where(ok0, g0, 1.0), 0.0)
+        Jp = sp.diags(vx) @ Gx + sp.diags(vy) @ Gy
+        LtL = LtL + Jp.T @ sp.diags(direction_weight * wv) @ Jp
+    wa = np.zeros(n)
+    za = z.copy()
+    if anchors is not None:
+        wa = np.where(np.asarray(anchors, dtype=bool)[m], anchor_weight * max(float(np.mean(wv)), 1e-300), 0.0)
     for _ in range(iterations):
         p, q = Gx @ z, Gy @ z
         g = np.hypot(p, q)
@@ -284,9 +306,10 @@ def refine_height(z0, slope, weight, mask, smoothness=1.0, iterations=3, slope_c
         ux = np.where(ok, p / np.where(ok, g, 1.0), 0.0)
         uy = np.where(ok, q / np.where(ok, g, 1.0), 0.0)
         J = sp.diags(ux) @ Gx + sp.diags(uy) @ Gy
-        A = J.T @ sp.diags(wv) @ J + LtL
-        z = _solve_spd(A, J.T @ (wv * sv))
-        z -= z.max()
+        A = J.T @ sp.diags(wv) @ J + LtL + sp.diags(wa)
+        z = _solve_spd(A, J.T @ (wv * sv) + wa * za)
+        if not wa.any():
+            z -= z.max()
     out = np.full(m.shape, np.nan)
     out[m] = z
     return out

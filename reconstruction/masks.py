@@ -19,7 +19,9 @@ def mask_from_intensity(intensity, min_pixels: int = 16):
     The threshold is Otsu's on ``log10(intensity)``: the background of a specular object in a
     dark surround sits orders of magnitude below the object. When the image holds no dark
     background (the two classes lie less than a factor 10 apart) every pixel with a positive
-    value is kept. Connected parts smaller than ``min_pixels`` are dropped.
+    value is kept. Connected parts smaller than ``min_pixels`` are dropped. Pixels enclosed
+    by the object, or in gaps of a few pixels across it, that are more than three times
+    brighter than the brightest background (its 99.9th percentile) join it.
 
     Parameters
     ----------
@@ -49,6 +51,15 @@ def mask_from_intensity(intensity, min_pixels: int = 16):
         keep = np.zeros(count + 1, dtype=bool)
         keep[1:] = sizes >= min_pixels
         mask = keep[labels]
+    # pixels enclosed by the object, or in a gap of a few pixels across it, that are clearly
+    # brighter than the background belong to it (a film near its anti-reflection minimum
+    # is dark, but not black: thin dark rings); a hole that shows the background (a ring's)
+    # or reflects nothing (the camera's hole in the dome) stays out
+    filled = ndimage.binary_fill_holes(ndimage.binary_closing(mask, np.ones((3, 3), bool), iterations=2) | mask)
+    gaps = filled & ~mask
+    if gaps.any() and (~filled).sum() >= min_pixels:
+        background = float(np.percentile(v[~filled], 99.9))
+        mask = mask | (gaps & (v > 3.0 * max(background, floor)))
     return mask
 
 

@@ -45,7 +45,22 @@ def coherent(dataset, options):
     return reconstruct_coherent(capture_from_dataset(dataset, options), progress=options.progress)
 
 
-def _spectral(dataset, options, function):
+def _s_cube(dataset):
+    """The s-polarized cube: ``spectral_s`` when read, else read now (a method that reads the
+    Stokes cube when there is one does not ask for it)."""
+    from thinfilm.core.errors import UserError
+
+    if dataset.spectral_s is not None:
+        return dataset.spectral_s
+    from thinfilm.core.io import read_dataset
+
+    if not (dataset.path / "spectral_s.exr").is_file():
+        raise UserError(f"{dataset.path}: the spectral methods need spectral_s.exr or stokes_spectral.exr, "
+                        f"and the dataset holds neither")
+    return read_dataset(dataset.path, need=("spectral_s",), optional=()).spectral_s
+
+
+def _spectral(dataset, options, function, use_stokes=False):
     from thinfilm.core.errors import UserError
 
     from .spectral import reconstruct_spectral
@@ -62,15 +77,19 @@ def _spectral(dataset, options, function):
         raise UserError(f"{meta_path}: substrate index must be above 1 for the spectral methods, got {n3:g} "
                         f"(give it with --substrate-ior)")
     pixel_size = dataset.pixel_size
+    stokes = dataset.stokes if (use_stokes and dataset.stokes) else None
+    cube = None if stokes is not None else _s_cube(dataset)
     mask = options.mask
     if dataset.valid is not None:  # valid.exr: e.g. saturated pixels of an imported capture
         import numpy as np
 
-        from .spectral_checks import object_mask
+        from .spectral_checks import object_mask, object_mask_stokes
 
-        mask = (object_mask(dataset.spectral_s) if mask is None else np.asarray(mask, dtype=bool)) & dataset.valid
-    est = reconstruct_spectral(dataset.spectral_s, dataset.wavelengths_nm, n3, mask=mask,
-                               method=function, pixel_size=pixel_size or 1.0)
+        if mask is None:
+            mask = object_mask(cube) if stokes is None else object_mask_stokes(stokes)
+        mask = np.asarray(mask, dtype=bool) & dataset.valid
+    est = reconstruct_spectral(cube, dataset.wavelengths_nm, n3, mask=mask,
+                               method=function, pixel_size=pixel_size or 1.0, stokes=stokes)
     est.info["coverage"] = float(est.valid.sum() / max(1, est.info["object_pixels"]))
     est.info["height_unit"] = "pixel" if pixel_size is None else "scene"
     return est
@@ -86,14 +105,15 @@ def kobayashi(dataset, options):
     return _spectral(dataset, options, reconstruct_kobayashi)
 
 
-@estimator("eikonal", kind="spectral", role="default", aliases=("default",), needs=("spectral_s",),
-           estimates_film_ior=True,
-           description="one film index for the object, per-pixel spectrum fits, eikonal surface "
-                       "with a confidence-weighted refinement")
+@estimator("eikonal", kind="spectral", role="default", aliases=("default",), needs=(),
+           uses=("stokes",), estimates_film_ior=True,
+           description="one film index for the object (below or above the substrate's), per-pixel "
+                       "fits of the s and p spectra (stokes_spectral.exr; else the s spectrum of "
+                       "spectral_s.exr), one consistent surface")
 def eikonal(dataset, options):
     from .spectral_eikonal import reconstruct_eikonal
 
-    return _spectral(dataset, options, reconstruct_eikonal)
+    return _spectral(dataset, options, reconstruct_eikonal, use_stokes=True)
 
 
 #: the built-in methods (the ``builtin`` entry point of the ``thinfilm.estimators`` group)

@@ -5,13 +5,18 @@
   (:mod:`.rgb_invert`: a k-d tree search over (zenith, thickness) then Levenberg–Marquardt,
   both on a bicubic spline of the model tabulated once from the optics core,
   :class:`~.rgb_model.FilmTable`);
-* makes the normal field consistent with one surface: the 180° ambiguity is seeded at the
-  occluding boundary as in the paper, then the normals are integrated to a height map on the
+* where several thickness basins fit a pixel about as well (weak fringes), chooses among
+  them for all pixels together, the film's thickness being smooth
+  (:func:`.candidates.choose_smooth`);
+* makes the normal field consistent with one surface: the 180° ambiguity is resolved for the
+  whole object at once (occluding contours outer and inner, ridges, creases:
+  :mod:`.azimuth`), then the normals are integrated to a height map on the
   mask (confidence-weighted Poisson with a small curvature penalty, :mod:`.surface`), and
   every pixel is re-fitted with a Gaussian prior towards the surface's normal (which fixes
   the sign of the azimuth, and the zenith where polarization is weak, near normal incidence)
   and towards the local median thickness (which fixes pixels that fell into a neighbouring
-  thickness basin);
+  thickness basin); the prior on the normal loosens where confident data disagree with the
+  surface (a tube's curvature that the smoothness flattens);
 * exports the final height field as ``surface.ply``.
 """
 
@@ -25,7 +30,7 @@ from thinfilm.core.conventions import angles_to_normals
 from thinfilm.core.io import Estimate
 from thinfilm.core.progress import progress_bar
 
-from .masks import resolve_azimuth
+from .azimuth import resolve_azimuth_global
 from .rgb_capture import RGBCapture
 
 __all__ = ["reconstruct_coherent"]
@@ -59,9 +64,40 @@ def _local_median(values, mask, size: int = 5):
     return np.where(np.isfinite(med), med, values)
 
 
+def _choose_basins(fit, cand_pix, cand, mask, sigma, thickness_sigma_nm):
+    """Each pixel's candidate (thickness basin) chosen jointly with its neighbours'
+    (:func:`.candidates.choose_smooth`); returns a :class:`~.rgb_invert.PixelFit`."""
+    from .candidates import choose_smooth
+    from .rgb_invert import PixelFit
+
+    n = fit.cost.size
+    order = np.argsort(cand_pix, kind="stable")
+    pix = cand_pix[order]
+    start = np.searchsorted(pix, np.arange(n))
+    slot = np.arange(pix.size) - start[pix]
+    K = int(slot.max()) + 1 if pix.size else 1
+    if K == 1:
+        return fit
+    values = np.full((n, K), np.nan)
+    costs = np.full((n, K), np.inf)
+    values[pix, slot] = cand.thickness_nm[order]
+    costs[pix, slot] = cand.data_cost[order] / sigma ** 2
+    choice = choose_smooth(values, costs, mask, thickness_sigma_nm)
+    chosen = np.full((n, K), -1, dtype=np.int64)
+    chosen[pix, slot] = order
+    sel = chosen[np.arange(n), choice]
+    keep = sel < 0
+    sel = np.where(keep, 0, sel)
+    out = PixelFit(*(np.where(keep.reshape((-1,) + (1,) * (np.ndim(getattr(fit, name)) - 1)),
+                              getattr(fit, name), getattr(cand, name)[sel])
+                     for name in ("zenith_deg", "azimuth_deg", "thickness_nm", "cost", "info", "data_cost")))
+    return out
+
+
 def reconstruct_coherent(capture: RGBCapture, progress: bool = False, rounds: int = 1,
-                         normal_prior_sigma: float = 0.01, thickness_prior_sigma_nm: float = 15.0,
-                         smoothness: float = 2.0) -> Estimate:
+                         normal_prior_sigma: float = 0.01, thickness_prior_sigma_nm: float = 8.0,
+                         smoothness: float = 2.0, thickness_smoothness_nm: float = 10.0,
+                         max_chi2: float = 50.0, robust_prior: bool = True, median_window: int = 9) -> Estimate:
     """Joint per-pixel inversion of the coherent model, then surface consistency.
 
     Parameters
@@ -71,8 +107,15 @@ def reconstruct_coherent(capture: RGBCapture, progress: bool = False, rounds: in
     normal_prior_sigma : σ of the prior on each normal's image-plane part around the
         integrated surface's normal (unitless; 0.01 ≈ 0.6° near normal incidence). Where the
         polarization data are confident (zenith beyond ~20°) they outweigh it.
-    thickness_prior_sigma_nm : σ of the prior on thickness around its 5 × 5 local median.
+    thickness_prior_sigma_nm : σ of the prior on thickness around its local median
+        (``median_window`` pixels square).
     smoothness : curvature penalty of the height integration (relative to the mean weight).
+    thickness_smoothness_nm : scale of the neighbour penalty when the thickness basins are
+        chosen jointly (:func:`.candidates.choose_smooth`).
+    max_chi2 : pixels whose final fit is worse than this (in units of the noise, per degree
+        of freedom) are reported invalid.
+    robust_prior : loosen the surface prior where confident data disagree with it.
+    median_window : side of the window of the local median thickness.
     """
     from .rgb_invert import PixelPrior, build_table, invert_pixels, refine_pixels
     from .surface import height_to_normals, integrate_normals
@@ -91,9 +134,15 @@ def reconstruct_coherent(capture: RGBCapture, progress: bool = False, rounds: in
     table = build_table(model, rng_nm)
     timings["table"] = time.perf_counter() - t
     t = time.perf_counter()
-    fit = invert_pixels(model, I_obs, angles, rng_nm, table=table)
+    fit, (cand_pix, cand) = invert_pixels(model, I_obs, angles, rng_nm, table=table, return_candidates=True)
     timings["per_pixel"] = time.perf_counter() - t
     bar.update(2)
+    # where several thicknesses fit a pixel about as well (weak fringes), the choice is made
+    # for all pixels together: the film's thickness is smooth
+    t = time.perf_counter()
+    sigma0 = max(float(np.sqrt(np.median(fit.cost) / max(3 * K - 3, 1))), 1e-12)
+    fit = _choose_basins(fit, cand_pix, cand, mask, sigma0, thickness_smoothness_nm)
+    timings["basins"] = time.perf_counter() - t
 
     t = time.perf_counter()
     # Noise level of the data, from the residuals (robust; dof = 3K - 3).
@@ -108,7 +157,10 @@ def reconstruct_coherent(capture: RGBCapture, progress: bool = False, rounds: in
     info_n = _normal_information(fit.info, n_xy) / sigma ** 2
     w_n = np.full(mask.shape, 0.0)
     w_n[mask] = 0.5 * np.trace(info_n, axis1=1, axis2=2)
-    az = resolve_azimuth(az, zen, mask)
+    # the azimuth's sign for the whole object at once (occluding contours, holes, ridges),
+    # confidence 1 where the axis is known to 0.05 rad
+    conf = np.clip(w_n * np.sin(np.radians(np.nan_to_num(zen))) ** 2 * 0.05 ** 2, 0.0, 1.0)
+    az = resolve_azimuth_global(az, zen, mask, conf)
     timings["azimuth"] = time.perf_counter() - t
 
     t = time.perf_counter()
@@ -120,10 +172,17 @@ def reconstruct_coherent(capture: RGBCapture, progress: bool = False, rounds: in
         weights = np.where(mask, w_n * nz ** 4, 0.0)
         height = integrate_normals(normals, mask, weights, smoothness=smoothness)
         n_surf = height_to_normals(height, mask)
-        d_med = _local_median(thick, mask)
+        d_med = _local_median(thick, mask, median_window)
+        # where confident data disagree with the surface by more than 3 of their standard
+        # deviations, the surface is wrong there (a tube's curvature the smoothness flattens):
+        # its prior loosens in proportion
+        n_dat = normals[mask][:, :2]
+        diff = n_surf[mask][:, :2] - n_dat
+        d2 = np.einsum("ni,nij,nj->n", diff, info_n, diff)
+        loosen = np.maximum(1.0, np.sqrt(np.maximum(d2, 0.0)) / 3.0) if robust_prior else np.ones(N)
         prior = PixelPrior(
             normal_xy=n_surf[mask][:, :2],
-            normal_weight=np.full(N, sigma / normal_prior_sigma),
+            normal_weight=sigma / normal_prior_sigma / loosen,
             thickness_nm=d_med[mask],
             thickness_weight=np.full(N, sigma / thickness_prior_sigma_nm))
         # Start from the current estimate, on the surface's side; thickness outliers restart
@@ -131,7 +190,7 @@ def reconstruct_coherent(capture: RGBCapture, progress: bool = False, rounds: in
         d0 = thick[mask]
         far = np.abs(d0 - d_med[mask]) > 3 * thickness_prior_sigma_nm
         d0 = np.where(far, d_med[mask], d0)
-        refit = refine_pixels(table, I_obs, angles, zen[mask], d0, az[mask], prior=prior)
+        refit = refine_pixels(table, I_obs, angles, zen[mask], d0, az[mask], prior=prior, iterations=20)
         phi = np.radians(refit.azimuth_deg)
         dot = n_surf[mask][:, 0] * np.cos(phi) + n_surf[mask][:, 1] * np.sin(phi)
         az_new = np.mod(refit.azimuth_deg + np.where(dot < 0, 180.0, 0.0), 360.0)
@@ -145,13 +204,13 @@ def reconstruct_coherent(capture: RGBCapture, progress: bool = False, rounds: in
     # where polarization says little.
     normals = angles_to_normals(zen, np.nan_to_num(az))
     nz = np.clip(normals[..., 2], 0.0, 1.0)
-    height = integrate_normals(normals, mask, np.where(mask, nz ** 2, 0.0), smoothness=0.05)
+    height = integrate_normals(normals, mask, np.where(mask, nz ** 2, 0.0), smoothness=0.05, max_direct=4096)
     timings["surface"] = time.perf_counter() - t
 
     # Pixels whose final fit to the data (priors left out) is far worse than the noise are
     # reported as invalid.
     chi2 = cost / (sigma ** 2 * max(3 * K - 3, 1))
-    ok = np.isfinite(chi2) & (chi2 < 50.0)
+    ok = np.isfinite(chi2) & (chi2 < max_chi2)
     valid = np.zeros(mask.shape, dtype=bool)
     valid[mask] = ok
     info = {**capture.info, "timings_s": timings, "noise_sigma": sigma,

@@ -105,7 +105,7 @@ class PixelPrior:
 
 def build_table(model: FilmCamera, thickness_range_nm, zenith_max_deg: float = 89.0,
                 zenith_step_deg: float = 1.0, thickness_step_nm: float = 6.0,
-                refine_zenith_max_deg: float = 89.5, phase_step_rad: float = 0.35) -> InversionTable:
+                refine_zenith_max_deg: float = 89.5, phase_step_rad: float = 0.7) -> InversionTable:
     """Tabulate the model for :func:`invert_pixels`.
 
     The spline table (one pass of the optics core over its grid) covers zenith up to
@@ -307,7 +307,7 @@ def refine_pixels(table: InversionTable, I_obs, angles_deg, zenith_deg, thicknes
 def invert_pixels(model: FilmCamera, I_obs, angles_deg, thickness_range_nm, table: InversionTable | None = None,
                   n_candidates: int = 5, weights=None, zenith_max_deg: float = 89.0,
                   competitive_ratio: float = 4.0, screen_ratio: float = 50.0, screen_iterations: int = 3,
-                  neighbours: int = 32, eps: float = 0.3):
+                  neighbours: int = 32, eps: float = 0.3, return_candidates: bool = False):
     """Coarse table search then LM refinement from each candidate; keep the best.
 
     Parameters
@@ -319,10 +319,12 @@ def invert_pixels(model: FilmCamera, I_obs, angles_deg, thickness_range_nm, tabl
         get ``screen_iterations`` LM steps; those then within ``competitive_ratio`` times the
         pixel's best (plus the new floor) are refined to convergence.
     neighbours, eps : of the k-d tree search (:func:`coarse_search`).
+    return_candidates : also return every candidate refined to convergence (pixel index and
+        :class:`PixelFit` of the candidates), for a choice among them by their neighbours.
 
     Returns
     -------
-    PixelFit
+    PixelFit, or (PixelFit, (pixel index, PixelFit of the candidates))
     """
     I_obs = np.asarray(I_obs, dtype=np.float64)
     if table is None:
@@ -350,7 +352,7 @@ def invert_pixels(model: FilmCamera, I_obs, angles_deg, thickness_range_nm, tabl
     floor = np.median(best_cost)
     go = cost[pix, cand] <= competitive_ratio * (best_cost[pix] + floor)
     pix, cand = pix[go], cand[go]
-    fit = refine(pix, cand, fit.zenith_deg[go], fit.thickness_nm[go], fit.azimuth_deg[go], 40)
+    fit = refine(pix, cand, fit.zenith_deg[go], fit.thickness_nm[go], fit.azimuth_deg[go], 20)
     order = np.lexsort((fit.cost, pix))                      # by pixel, then cost
     first = np.ones(order.size, dtype=bool)
     first[1:] = pix[order][1:] != pix[order][:-1]
@@ -359,4 +361,6 @@ def invert_pixels(model: FilmCamera, I_obs, angles_deg, thickness_range_nm, tabl
                      ("zenith_deg", "azimuth_deg", "thickness_nm", "cost", "info", "data_cost")))
     for name in ("zenith_deg", "azimuth_deg", "thickness_nm", "cost", "info", "data_cost"):
         getattr(out, name)[pix[sel]] = getattr(fit, name)[sel]
+    if return_candidates:
+        return out, (pix, fit)
     return out

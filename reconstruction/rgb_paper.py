@@ -32,7 +32,7 @@ from thinfilm.core.progress import progress_iter
 from .masks import resolve_azimuth
 from .rgb_capture import RGBCapture
 
-__all__ = ["incoherent_polarization_curve", "zenith_from_dop", "reconstruct_kobayashi2023"]
+__all__ = ["incoherent_polarization_curve", "zenith_from_dop", "check_film_below_substrate", "reconstruct_kobayashi2023"]
 
 
 def incoherent_polarization_curve(film_ior: float, substrate_ior: float, zenith_deg):
@@ -81,8 +81,22 @@ def zenith_from_dop(dop_obs, I_s_obs, film_ior, substrate_ior, zenith_max_deg: f
     return np.where(larger, high, low), brewster
 
 
+def check_film_below_substrate(film, where="meta.json"):
+    """Refuse a film whose index is not below its substrate's: the paper sets its method out
+    for such films (Sec. 4, Figs. 4-5: 1.36 on 1.6; Sec. 6.3: "n2 is lower than that of the
+    bottom layer")."""
+    from thinfilm.core.errors import UserError
+
+    n2, n3 = film.effective_index(), film.effective_substrate_index()
+    if n2 >= n3:
+        raise UserError(f"{where}: film index {n2:g} >= substrate index {n3:g}; the paper's method is set out for a "
+                        f"film below its substrate's index (its Sec. 4, Figs. 4-5); the default method (coherent) "
+                        f"handles both")
+
+
 def reconstruct_kobayashi2023(capture: RGBCapture, progress: bool = False) -> Estimate:
     """The paper's polarized-RGB method as published (see the module docstring)."""
+    check_film_below_substrate(capture.model.film)
     timings = {}
     t0 = time.perf_counter()
     mask = capture.mask

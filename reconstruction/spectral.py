@@ -33,19 +33,20 @@ import numpy as np
 from thinfilm.core.errors import UserError
 from thinfilm.core.io import Estimate
 
-from .spectral_checks import check_cube, object_mask
+from .spectral_checks import check_cube, object_mask, object_mask_stokes
 from .spectral_eikonal import reconstruct_eikonal
 
 __all__ = ["reconstruct_spectral"]
 
 
 def reconstruct_spectral(cube, wavelengths_nm, substrate_ior, mask=None, method=reconstruct_eikonal,
-                         pixel_size=1.0) -> Estimate:
+                         pixel_size=1.0, stokes=None) -> Estimate:
     """Estimate normals, film index and thickness from an s-polarized spectral cube.
 
     Parameters
     ----------
-    cube : (H, W, B) s reflectance per band.
+    cube : (H, W, B) s reflectance per band (may be None when ``stokes`` is given to the
+        default method).
     wavelengths_nm : (B,) band centres.
     substrate_ior : float, the substrate index n3 (> 1).
     mask : (H, W) bool, optional; from the data (:func:`object_mask`) if not given.
@@ -55,25 +56,40 @@ def reconstruct_spectral(cube, wavelengths_nm, substrate_ior, mask=None, method=
         Width of a pixel in scene units (``meta.json`` ``projection.pixel_size``): the height
         field, integrated from ``|∇z| = tan θ`` on the pixel grid, is scaled by it so that it
         is in the same unit as the pixel positions (1: both in pixels).
+    stokes : dict ``S0``, ``S1``, ``S2`` → (H, W, B), optional
+        The linear Stokes cube: the default method then fits each pixel's s and p spectra
+        (:func:`.spectral_stokes.reconstruct_stokes`) instead of the s spectrum alone.
 
     Returns
     -------
     :class:`thinfilm.core.io.Estimate` (``height`` in the unit of ``pixel_size``)
     """
-    cube, wl = check_cube(cube, wavelengths_nm)
+    use_stokes = stokes is not None and method is reconstruct_eikonal
+    if use_stokes:
+        for name in ("S0", "S1", "S2"):
+            _, wl = check_cube(stokes[name], wavelengths_nm, where="stokes_spectral")
+        shape = np.shape(stokes["S0"])[:2]
+    else:
+        cube, wl = check_cube(cube, wavelengths_nm)
+        shape = cube.shape[:2]
     if not (substrate_ior > 1.0):
         raise UserError(f"--substrate-ior: expected an index above 1, got {substrate_ior}")
     if mask is None:
-        mask = object_mask(cube)
+        mask = object_mask(cube) if not use_stokes else object_mask_stokes(stokes)
     mask = np.asarray(mask, dtype=bool)
-    if mask.shape != cube.shape[:2]:
-        raise UserError(f"--mask: shape {mask.shape} does not match the images {cube.shape[:2]}")
+    if mask.shape != shape:
+        raise UserError(f"--mask: shape {mask.shape} does not match the images {shape}")
     if mask.sum() < 20:
         raise UserError("spectral_s: fewer than 20 object pixels (nothing reflects above the background)")
     if not (np.isfinite(pixel_size) and pixel_size > 0):
         raise UserError(f"projection.pixel_size: expected a positive number, got {pixel_size}")
     t0 = time.perf_counter()
-    est = method(cube, wl, float(substrate_ior), mask)
+    if use_stokes:
+        from .spectral_stokes import reconstruct_stokes
+
+        est = reconstruct_stokes(stokes, wl, float(substrate_ior), mask)
+    else:
+        est = method(cube, wl, float(substrate_ior), mask)
     if est.height is not None:
         est.height = est.height * float(pixel_size)
     est.pixel_size = float(pixel_size)

@@ -3,28 +3,30 @@
 The methods need a dielectric substrate (``k3 = 0``): the capture ``S0 + sqrt(S1² + S2²)`` is
 ``max(R_s, R_p)``, which is ``R_s`` for a film on a dielectric but not on an absorbing
 substrate. The paper's peak analysis needs a film optically thinner than the substrate
-(``n2 < n3``); :func:`check_peak_assumption` reads that from the spectra.
+(``n2 < n3``); :func:`check_peak_assumption` reads that from the physics of the spectra.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from scipy import ndimage
 
 from thinfilm.core.errors import UserError
 
-from . import spectral_model as _sm
 from .masks import mask_from_intensity
 from .peaks import PEAK_NONE, PEAK_OK, PEAK_SEVERAL, find_peaks
 
-__all__ = ["MIN_BANDS", "check_cube", "object_mask", "check_peak_assumption", "check_dielectric_substrate",
+__all__ = ["MIN_BANDS", "check_cube", "object_mask", "object_mask_stokes", "check_peak_assumption", "check_dielectric_substrate",
            "peaks_of"]
 
 MIN_BANDS = 10
 
 
 def check_cube(cube, wavelengths_nm, where="spectral_s"):
-    cube = np.asarray(cube, dtype=np.float64)
+    """The cube (as given, a float array: NumPy converts pixels when they are used) and the
+    wavelengths (float64), checked: shape, band count, increasing bands, finite values."""
+    cube = np.asarray(cube)
+    if not np.issubdtype(cube.dtype, np.floating):
+        cube = cube.astype(np.float64)
     wl = np.asarray(wavelengths_nm, dtype=np.float64)
     if cube.ndim != 3:
         raise UserError(f"{where}: expected an (H, W, bands) cube, got shape {cube.shape}")
@@ -45,38 +47,45 @@ def object_mask(cube):
     return mask_from_intensity(np.asarray(cube).mean(axis=2))
 
 
-def check_peak_assumption(spectra, substrate_ior, noise=None):
-    """Raise :class:`UserError` when the spectra say ``n2 >= n3`` (peaks are minima).
+def object_mask_stokes(stokes):
+    """:func:`object_mask` of the s-polarized cube a Stokes cube gives (``S0 + |S1, S2|``,
+    what a rotating-polarizer camera records as ``spectral_s``), from its band mean."""
+    s0 = np.asarray(stokes["S0"])
+    s = s0.mean(axis=2, dtype=np.float64) + np.hypot(stokes["S1"], stokes["S2"]).mean(axis=2, dtype=np.float64)
+    return mask_from_intensity(s)
 
-    With ``n2 < n3`` a film's reflectance dips below the bare substrate's (the quarter-wave
-    troughs; at small angles below the substrate's normal-incidence value ``R0``). With
-    ``n2 > n3`` it never does: every extremum at ``e^{iΔ} = 1`` is a *minimum* equal to the
-    substrate's, and Eq. 21 would read minima as peaks. The test: among pixels whose spectra
-    oscillate clearly, almost none dips below ``R0``.
+
+def check_peak_assumption(spectra, wavelengths_nm, substrate_ior):
+    """Raise :class:`UserError` when the spectra say ``n2 > n3`` (the paper's peaks are minima).
+
+    Where the film's round-trip phase is a multiple of 2π the reflectance is the bare
+    substrate's whatever the film (the paper's Eq. 21). With ``n2 < n3`` those are the
+    maxima of the s spectrum (the constructive-interference peaks the paper reads), with
+    ``n2 > n3`` the minima. Both readings are fitted to the object's spectra with one film
+    index (:func:`.spectral_fit.estimate_film_ior_either_side`, on pixels at well-conditioned
+    angles, whatever angles the object shows) and the better one tells the side.
 
     Parameters
     ----------
-    spectra : (N, B) object spectra.
+    spectra : (N, B) object spectra (s).
+    wavelengths_nm : (B,).
     substrate_ior : float.
-    noise : (N,) per-band noise, optional.
     """
+    from .spectral_fit import estimate_film_ior_either_side
+
     S = np.asarray(spectra, dtype=np.float64)
     if S.shape[0] < 20:
         return
-    r0 = float(_sm.peak_reflectance(0.0, substrate_ior))
-    lo = ndimage.gaussian_filter1d(S, 1.5, axis=1).min(axis=1)
-    hi = ndimage.gaussian_filter1d(S, 1.5, axis=1).max(axis=1)
-    nz = np.zeros(S.shape[0]) if noise is None else np.asarray(noise)
-    oscillating = (hi - lo) > np.maximum(0.15 * hi, 6.0 * nz)
-    if oscillating.sum() < 20:
-        return
-    dips = lo[oscillating] < r0 * 0.97
-    if dips.mean() < 0.02:
+    try:
+        n2, info = estimate_film_ior_either_side(S, wavelengths_nm, substrate_ior, max_pixels=80)
+    except UserError:
+        return  # no extremum at all: the method itself reports what it cannot do
+    if info["film_ior_above_substrate"]:
         raise UserError(
-            f"spectral_s: the spectra never dip below the bare substrate's reflectance "
-            f"({r0:.4f} for substrate index {substrate_ior:g}), so the film index is not below the "
-            f"substrate's and the constructive-interference peaks are minima; the spectral method "
-            f"needs n2 < n3 (check --substrate-ior)")
+            f"spectral_s: the spectra say the film index (about {n2:.2f}) is above the substrate's ({substrate_ior:g}): "
+            f"their extrema at the bare substrate's reflectance are minima, so the constructive-interference peaks "
+            f"the paper's method reads are not there; it needs n2 < n3 (the default method handles both; "
+            f"check --substrate-ior)")
 
 
 def check_dielectric_substrate(film, where):

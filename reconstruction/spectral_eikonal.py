@@ -28,9 +28,9 @@ from thinfilm.core.io import Estimate
 
 from . import eikonal as _eik
 from . import spectral_model as _sm
-from .spectral_checks import check_peak_assumption, peaks_of
-from .spectral_fit import _fit_no_peak, _levenberg_marquardt, _sigma_theta, _thickness_at, estimate_film_ior, \
-    initial_thickness
+from .peaks import PEAK_NONE, PEAK_OK, PEAK_SEVERAL
+from .spectral_fit import _fit_no_peak, _levenberg_marquardt, _sigma_theta, _thickness_at, \
+    estimate_film_ior_either_side, extrema_angles, initial_thickness
 
 __all__ = ["reconstruct_eikonal"]
 
@@ -50,23 +50,23 @@ def _unfold_magnitude(observed, sigma):
 
 
 def reconstruct_eikonal(cube, wavelengths_nm, substrate_ior, mask, smoothness=10.0, angle_floor_deg=0.2,
-                        condition_scale=2.0, noise_scale=1.0, misfit=3.0):
+                        condition_scale=2.0, noise_scale=1.0, misfit=3.0, direction_weight=0.1, anchor_weight=1.0):
     """The default method (see the module docstring)."""
     wl = np.asarray(wavelengths_nm, dtype=np.float64)
     n3 = float(substrate_ior)
     t = {}
+    # 1. the film index, once for the object, below or above the substrate's (which side
+    # holds is read from the spectra: the extrema at the bare substrate's reflectance are
+    # maxima below it, minima above it)
     t0 = time.perf_counter()
-    spectra, pk, stats = peaks_of(cube, mask, wl)
-    check_peak_assumption(spectra, n3, pk.noise)
-    peak_val = np.where(np.isfinite(pk.mean_value), pk.mean_value, pk.value)
-    theta_peak = _sm.angle_from_peak(peak_val, n3)
-    t["peaks"] = time.perf_counter() - t0
-
-    # 1. the film index, once for the object
-    t0 = time.perf_counter()
-    use = np.isfinite(theta_peak) & (theta_peak > np.radians(25)) & (theta_peak < np.radians(65))
-    n2, n2_info = estimate_film_ior(spectra[use], theta_peak[use], pk.wavelength_nm[use], n3, wl)
+    spectra = np.asarray(np.asarray(cube)[mask], dtype=np.float64)
+    n2, n2_info = estimate_film_ior_either_side(spectra, wl, n3)
     t["film_ior"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    pk, theta_peak = extrema_angles(spectra, wl, n3, n2_info["film_ior_above_substrate"])
+    stats = {"peak_one": int(np.sum(pk.status == PEAK_OK)), "peak_several": int(np.sum(pk.status == PEAK_SEVERAL)),
+             "peak_none": int(np.sum(pk.status == PEAK_NONE))}
+    t["peaks"] = time.perf_counter() - t0
 
     # 2. (θ, d) per pixel. The capture is S0 + sqrt(S1² + S2²); its noise bias is modelled
     # with the S1/S2 noise of a four-angle rotating polarizer, about the band noise of the
@@ -134,7 +134,15 @@ def reconstruct_eikonal(cube, wavelengths_nm, substrate_ior, mask, smoothness=10
     # (σ comparable to the slope) its noise only ever adds to it; the target is the slope
     # whose folded-normal mean is the measurement
     slope_t = np.where(mask, _unfold_magnitude(slope, np.where(mask, sig_slope, 1.0)), 0.0)
-    z = _eik.refine_height(z0, slope_t, weight, mask, smoothness=smoothness)
+    # started from the silhouette (no occluding band: flat faces meeting a ground edge), the
+    # surface keeps the fast march's gradient directions and the silhouette's height; a dome
+    # started from its steep band is smoothed freely (the march's directions are poor where
+    # its fronts meet, at the top)
+    flat = seed_kind == "silhouette"
+    z = _eik.refine_height(z0, slope_t, weight, mask, smoothness=smoothness,
+                           direction_weight=direction_weight if flat else 0.0,
+                           anchors=mask & (phi <= 0) if flat else None, anchor_weight=anchor_weight)
+    z -= np.nanmax(z)
     p, q = _eik.height_gradient(z, mask)
     theta_z = np.arctan(np.hypot(p, q))
     # blend: the pixel's own angle where it is precise, the surface's elsewhere

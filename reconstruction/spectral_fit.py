@@ -20,16 +20,25 @@ from thinfilm.core.errors import UserError
 from . import spectral_model as _sm
 from .lm import levenberg_marquardt
 
-__all__ = ["MAX_THICKNESS_NM", "fit_angle_thickness", "initial_thickness", "estimate_film_ior"]
+__all__ = ["MAX_THICKNESS_NM", "FILM_IOR_MAX", "fit_angle_thickness", "initial_thickness", "estimate_film_ior",
+           "estimate_film_ior_either_side", "extrema_angles"]
 
 MAX_THICKNESS_NM = 1000.0
 
 
-def _film_ior_grid(substrate_ior):
-    # 1.00, 1.01, ... up to (not including) n3
-    k = int(np.floor((substrate_ior - 1.0) / 0.01 + 1e-9))
-    g = np.round(1.0 + 0.01 * np.arange(k + 1), 2)
-    return g[g < substrate_ior - 1e-9]
+#: largest film index the default method considers (above the substrate's: up to here)
+FILM_IOR_MAX = 2.6
+
+
+def _film_ior_grid(substrate_ior, above=False, step=0.01):
+    """Film indices to search: 1.00, 1.01, ... below ``n3`` (the paper's grid), or, with
+    ``above``, from just above ``n3`` up to :data:`FILM_IOR_MAX`."""
+    if not above:
+        k = int(np.floor((substrate_ior - 1.0) / step + 1e-9))
+        g = np.round(1.0 + step * np.arange(k + 1), 6)
+        return g[g < substrate_ior - 1e-9]
+    k = int(np.floor((FILM_IOR_MAX - substrate_ior) / step + 1e-9))
+    return np.round(substrate_ior + step * np.arange(1, k + 1), 6)
 
 
 def _order_candidates(theta, peak_wl, n2_values, max_thickness_nm=MAX_THICKNESS_NM):
@@ -157,13 +166,16 @@ def initial_thickness(spectra, theta_rad, peak_wl_nm, film_ior, substrate_ior, w
     return dc[np.arange(dc.shape[0]), np.argmin(e, axis=1)]
 
 
-def _joint_film_ior(S, th, d, n2, n3, wl, iterations=15):
-    """Gauss-Newton over one shared n2 and every pixel's (θ, d) (Schur complement on n2)."""
+def _joint_film_ior(S, th, d, n2, n3, wl, iterations=15, bounds=None):
+    """Gauss-Newton over one shared n2 and every pixel's (θ, d) (Schur complement on n2);
+    ``S`` holds s spectra (N, B) or s then p spectra (N, 2 B); n2 stays within ``bounds``
+    (default: below the substrate's index)."""
     th, d = th.copy(), d.copy()
-    n2_lo, n2_hi = 1.0, n3 - 1e-3
+    n2_lo, n2_hi = (1.0, n3 - 1e-3) if bounds is None else bounds
+    with_p = S.shape[1] == 2 * np.size(wl)
     sse_total = np.inf
     for _ in range(iterations):
-        R, Jt, Jd, Jn = _sm.rs_spectra(th, d, n2, n3, wl, jac=("theta", "thickness", "film_ior"))
+        R, Jt, Jd, Jn = _sm.rs_spectra(th, d, n2, n3, wl, jac=("theta", "thickness", "film_ior"), with_p=with_p)
         r = S - R
         e = float(np.sum(r * r))
         dot = lambda x, y: np.einsum("ij,ij->i", x, y)  # noqa: E731
@@ -185,7 +197,7 @@ def _joint_film_ior(S, th, d, n2, n3, wl, iterations=15):
             n2_new = float(np.clip(n2 + step * dn, n2_lo, n2_hi))
             th_new = np.abs(th + step * np.clip(dt, -0.2, 0.2))
             d_new = np.maximum(d + step * np.clip(dd, -40, 40), 0.0)
-            R2 = _sm.rs_spectra(th_new, d_new, n2_new, n3, wl)
+            R2 = _sm.rs_spectra(th_new, d_new, n2_new, n3, wl, with_p=with_p)
             e2 = float(np.sum((S - R2) ** 2))
             if e2 < e:
                 break
@@ -245,25 +257,150 @@ def estimate_film_ior(spectra, theta_rad, peak_wl_nm, substrate_ior, wavelengths
     return n2_fit, {"film_ior_grid": n2_grid, "film_ior_pixels": int(ok.sum())}
 
 
+def extrema_angles(spectra_s, wavelengths_nm, substrate_ior, above):
+    """The extrema where the film's round-trip phase is a multiple of 2π, where the
+    reflectance is the bare substrate's whatever the film (Eq. 21): maxima of the s spectrum
+    for a film below the substrate's index, minima above it. Returns the peak result
+    (:func:`.peaks.find_peaks`, values positive) and the incident angle from the extremum's
+    value (NaN where a pixel has none)."""
+    from .peaks import find_peaks
+
+    S = np.asarray(spectra_s, dtype=np.float64)
+    pk = find_peaks(-S if above else S, wavelengths_nm)
+    if above:
+        pk.value, pk.mean_value, pk.all_value = -pk.value, -pk.mean_value, -pk.all_value
+    val = np.where(np.isfinite(pk.mean_value), pk.mean_value, pk.value)
+    return pk, _sm.angle_from_peak(val, substrate_ior)
+
+
+def _pooled_search(S, th, lam, n3, wl, grid):
+    """The (n2, m) search of Eqs. 28-30 summed over pooled pixels: total SSE per grid value,
+    and each pixel's best thickness at every grid value."""
+    d, n2, _ = _order_candidates(th, lam, grid)
+    sse = _sm.grid_sse(S, th, d, n2, n3, wl)
+    G = grid.size
+    sse_g = sse.reshape(S.shape[0], G, -1)
+    best_m = np.argmin(sse_g, axis=2)
+    per_grid = np.min(sse_g, axis=2)
+    total = np.sum(np.where(np.isfinite(per_grid), per_grid, 1e3), axis=0)
+    d_best = np.take_along_axis(d.reshape(S.shape[0], G, -1), best_m[..., None], axis=2)[..., 0]
+    return total, d_best
+
+
+def estimate_film_ior_either_side(spectra, wavelengths_nm, substrate_ior, max_pixels=160,
+                                  angle_range_deg=(20.0, 70.0), coarse_step=0.04, max_candidates=4000):
+    """One film index for the object, below or above the substrate's, from the spectra.
+
+    Which side holds is read from the physics of the spectra: below the substrate's index the
+    extrema at the bare substrate's reflectance are the maxima, above it the minima; both
+    hypotheses (angles from the maxima and 1.00 <= n2 < n3, or from the minima and
+    n3 < n2 <= :data:`FILM_IOR_MAX`) are fitted, by the pooled (n2, m) search, to the same
+    pixels (those with both extrema at well-conditioned angles), and the better fit wins.
+    The winner is refined by the joint Gauss-Newton over the shared n2 and every pixel's
+    (θ, d). Nothing assumes near-normal pixels.
+
+    Parameters
+    ----------
+    spectra : (N, B) s spectra, or (N, 2 B) s then p spectra (a Stokes capture: both fitted).
+    max_pixels : pixels pooled per hypothesis (evenly spread over those that qualify).
+    max_candidates : pixels examined for extrema (evenly spread over the object).
+
+    Returns
+    -------
+    film_ior : float
+    info : dict (``film_ior_above_substrate``, the pooled pixels, the grid value, the two
+        hypotheses' mean squared residuals)
+
+    Raises
+    ------
+    UserError
+        When no pixel shows such an extremum at a usable angle.
+    """
+    wl = np.asarray(wavelengths_nm, dtype=np.float64)
+    S_all = np.asarray(spectra, dtype=np.float64)
+    if S_all.shape[0] > max_candidates:
+        S_all = S_all[np.linspace(0, S_all.shape[0] - 1, max_candidates).round().astype(int)]
+    b = wl.size
+    lo, hi = np.radians(angle_range_deg)
+    hyp = {}
+    for above in (False, True):
+        pk, th = extrema_angles(S_all[:, :b], wl, substrate_ior, above)
+        use = np.isfinite(th) & (th > lo) & (th < hi)
+        if use.sum() < 12:
+            # an object with no pixel at a well-conditioned angle (a gentle sheet, a shallow
+            # cap): whatever angles it has; the joint fit refines their angles with the index
+            use = np.isfinite(th) & (th < np.radians(88.0))
+        hyp[above] = (pk, th, use)
+    both = hyp[False][2] & hyp[True][2]
+    if both.sum() >= 12:
+        pools = {False: both, True: both}
+    else:
+        pools = {k: v[2] for k, v in hyp.items()}
+    results = {}
+    for above in (False, True):
+        idx = np.nonzero(pools[above])[0]
+        if idx.size == 0:
+            continue
+        if idx.size > max_pixels:
+            idx = idx[np.linspace(0, idx.size - 1, max_pixels).round().astype(int)]
+        pk, th = hyp[above][0], hyp[above][1]
+        S, t, lam = S_all[idx], th[idx], pk.wavelength_nm[idx]
+        grid = _film_ior_grid(substrate_ior, above, coarse_step)
+        if grid.size == 0:
+            continue
+        coarse, _ = _pooled_search(S, t, lam, substrate_ior, wl, grid)
+        g0 = float(grid[int(np.argmin(coarse))])
+        fine = _film_ior_grid(substrate_ior, above, 0.01)
+        fine = fine[np.abs(fine - g0) <= coarse_step + 1e-9]
+        total, d_best = _pooled_search(S, t, lam, substrate_ior, wl, fine)
+        k = int(np.argmin(total))
+        results[above] = (float(total[k]) / idx.size, float(fine[k]), S, t, d_best[:, k])
+    if not results:
+        raise UserError("spectral_s: no pixel shows an interference extremum at a usable angle "
+                        f"({angle_range_deg[0]:g}°-{angle_range_deg[1]:g}°), so the film index cannot be estimated")
+    above = min(results, key=lambda a: results[a][0])
+    _, n2_grid, S, t, d0 = results[above]
+    ok = np.isfinite(d0)
+    bounds = (substrate_ior + 1e-3, FILM_IOR_MAX) if above else (1.0, substrate_ior - 1e-3)
+    n2_fit, _, _, sse = _joint_film_ior(S[ok], t[ok], d0[ok], n2_grid, substrate_ior, wl, bounds=bounds)
+    mirrored = None
+    if not above:
+        # Near normal incidence a film n2 below the substrate and one of n3 / n2 give the same
+        # spectra (the two interfaces' amplitudes swap; n2 d is the same): only oblique
+        # pixels tell them apart. Where the data cannot (the fits differ by less than the
+        # noise), the larger index is taken: a film of n3 / n2 below sqrt(n3) is rare.
+        n2_m = substrate_ior / n2_fit
+        if 1.0 < n2_m < substrate_ior - 1e-3 and abs(n2_m - n2_fit) > 0.02:
+            d_m = d0[ok] * n2_fit / n2_m
+            n2_mf, _, _, sse_m = _joint_film_ior(S[ok], t[ok], d_m, n2_m, substrate_ior, wl, bounds=bounds)
+            from .peaks import _band_noise
+
+            sigma2 = float(np.median(_band_noise(S[ok, :b]))) ** 2
+            indistinct = abs(sse_m - sse) < max(10.0 * sigma2, 0.02 * min(sse, sse_m))
+            mirrored = {"film_ior": float(n2_mf), "sse_ratio": float(sse_m / max(sse, 1e-300))}
+            if (sse_m < sse and not indistinct) or (indistinct and n2_mf > n2_fit):
+                n2_fit = n2_mf
+    info = {"film_ior_grid": n2_grid, "film_ior_pixels": int(ok.sum()), "film_ior_above_substrate": bool(above),
+            "film_ior_fit_below": results.get(False, (None,))[0], "film_ior_fit_above": results.get(True, (None,))[0],
+            "film_ior_mirrored": mirrored}
+    return float(n2_fit), info
+
+
+
 def _init_no_peak(S, n2, n3, wl, d_guess):
     """Coarse (θ, d) grid for pixels without a peak: θ in 3° steps, d ± 60 nm (15 nm steps)
     around a guess; Levenberg-Marquardt refines from there."""
     thetas = np.radians(np.arange(0.0, 89.0, 3.0))
     offs = np.arange(-60.0, 60.1, 15.0)
     n = S.shape[0]
-    best_t = np.zeros(n)
-    best_d = np.array(d_guess, dtype=np.float64)
-    best_e = np.full(n, np.inf)
-    dd = np.maximum(best_d[:, None] + offs[None, :], 0.0)
-    for t_ in thetas:
-        e = _sm.grid_sse(S, np.full(n, t_), dd, np.full(dd.shape, n2), n3, wl)
-        k = np.argmin(e, axis=1)
-        ek = e[np.arange(n), k]
-        better = ek < best_e
-        best_e = np.where(better, ek, best_e)
-        best_t = np.where(better, t_, best_t)
-        best_d = np.where(better, dd[np.arange(n), k], best_d)
-    return best_t, best_d
+    t_n = thetas.size
+    dd = np.maximum(np.asarray(d_guess, dtype=np.float64)[:, None] + offs[None, :], 0.0)
+    # every (pixel, angle) pair as one row: one evaluation of the whole grid
+    rows = np.repeat(np.arange(n), t_n)
+    e = _sm.grid_sse(S[rows], np.tile(thetas, n), dd[rows], np.full((rows.size, offs.size), n2), n3, wl)
+    e = e.reshape(n, t_n * offs.size)
+    k = np.argmin(e, axis=1)
+    return thetas[k // offs.size], dd[np.arange(n), k % offs.size]
 
 
 def _fit_no_peak(spectra, mask, has, th_fit, d_fit, n2, n3, wl, stokes_noise, misfit=3.0, which=None):

@@ -18,11 +18,13 @@ import numpy as np
 from thinfilm.bsdf import optics
 
 __all__ = [
+    "airy_coefficients",
     "rs_spectra",
     "grid_sse",
     "peak_reflectance",
     "angle_from_peak",
     "drjit_available",
+    "use_drjit",
 ]
 
 _CHUNK = 1 << 22  # elements (pixels × bands) per kernel
@@ -43,6 +45,16 @@ def drjit_available() -> bool:
         return False
 
 
+#: below this many lanes (pixels × bands × outputs) a NumPy evaluation beats a Dr.Jit
+#: kernel (whose thread pool takes milliseconds to wake up)
+DRJIT_MIN_LANES = 1 << 18
+
+
+def use_drjit(lanes: int, minimum: int = DRJIT_MIN_LANES) -> bool:
+    """Whether an evaluation of ``lanes`` values runs on Dr.Jit's LLVM backend."""
+    return lanes >= minimum and drjit_available()
+
+
 def _measured(R_s, R_p, sigma2, sqrt):
     """Expected ``S0 + sqrt(S1² + S2²)`` of a rotating-polarizer capture.
 
@@ -55,16 +67,22 @@ def _measured(R_s, R_p, sigma2, sqrt):
     return 0.5 * (R_s + R_p) + sqrt(b * b + (0.5 * np.pi) * sigma2)
 
 
-def _np_rs(theta, d, n2, n3, wl, sig2=None):
+def _np_rs(theta, d, n2, n3, wl, sig2=None, with_p=False):
     R_s, R_p = optics.reflectances(np.cos(theta)[:, None], wl[None, :], d[:, None], n2[:, None], n3)
+    if with_p:
+        return np.concatenate([R_s, R_p], axis=1)
     if sig2 is None:
         return R_s
     return _measured(R_s, R_p, sig2[:, None], np.sqrt)
 
 
 def rs_spectra(theta_rad, thickness_nm, film_ior, substrate_ior, wavelengths_nm, jac=(),
-               stokes_noise=None):
+               stokes_noise=None, with_p=False):
     """s reflectance spectra of N pixels and, optionally, their partial derivatives.
+
+    With ``with_p`` every row holds the s spectrum followed by the p spectrum (2 B values;
+    ``stokes_noise`` is then not used: both come from the linear Stokes parameters, which
+    carry no such bias).
 
     Parameters
     ----------
@@ -93,32 +111,35 @@ def rs_spectra(theta_rad, thickness_nm, film_ior, substrate_ior, wavelengths_nm,
     n, b = theta.size, wl.size
     sig2 = None if stokes_noise is None else np.broadcast_to(
         np.asarray(stokes_noise, dtype=np.float64) ** 2, theta.shape).ravel()
-    outs = [np.empty((n, b)) for _ in range(1 + len(jac))]
-    rows = max(1, _CHUNK // max(b, 1))
-    use_dr = drjit_available()
+    if with_p:
+        sig2 = None
+    cols = 2 * b if with_p else b
+    outs = [np.empty((n, cols)) for _ in range(1 + len(jac))]
+    rows = max(1, _CHUNK // max(cols, 1))
+    use_dr = use_drjit(n * cols * (1 + len(jac)))
     for s in range(0, n, rows):
         e = min(n, s + rows)
         parts = (_dr_chunk if use_dr else _np_chunk)(theta[s:e], d[s:e], n2[s:e], float(substrate_ior), wl, jac,
-                                                     None if sig2 is None else sig2[s:e])
+                                                     None if sig2 is None else sig2[s:e], with_p)
         for o, p in zip(outs, parts):
             o[s:e] = p
     return outs[0] if not jac else tuple(outs)
 
 
-def _np_chunk(theta, d, n2, n3, wl, jac, sig2=None):
-    out = [_np_rs(theta, d, n2, n3, wl, sig2)]
+def _np_chunk(theta, d, n2, n3, wl, jac, sig2=None, with_p=False):
+    out = [_np_rs(theta, d, n2, n3, wl, sig2, with_p)]
     steps = {"theta": 1e-6, "thickness": 1e-4, "film_ior": 1e-6}
     for name in jac:
         h = steps[name]
         args = {"theta": theta, "thickness": d, "film_ior": n2}
         hi = dict(args, **{name: args[name] + h})
         lo = dict(args, **{name: args[name] - h})
-        out.append((_np_rs(hi["theta"], hi["thickness"], hi["film_ior"], n3, wl, sig2)
-                    - _np_rs(lo["theta"], lo["thickness"], lo["film_ior"], n3, wl, sig2)) / (2 * h))
+        out.append((_np_rs(hi["theta"], hi["thickness"], hi["film_ior"], n3, wl, sig2, with_p)
+                    - _np_rs(lo["theta"], lo["thickness"], lo["film_ior"], n3, wl, sig2, with_p)) / (2 * h))
     return out
 
 
-def _dr_chunk(theta, d, n2, n3, wl, jac, sig2=None):
+def _dr_chunk(theta, d, n2, n3, wl, jac, sig2=None, with_p=False):
     import drjit as dr
     from drjit.llvm.ad import Float64
 
@@ -131,17 +152,22 @@ def _dr_chunk(theta, d, n2, n3, wl, jac, sig2=None):
     for name in jac:
         dr.enable_grad(var[name])
     R_s, R_p = optics.reflectances(dr.cos(T), W, D, N2, n3)
-    R = R_s if sig2 is None else _measured(R_s, R_p, dr.repeat(Float64(sig2), b), dr.sqrt)
+    outs = [R_s, R_p] if with_p else [R_s if sig2 is None else _measured(R_s, R_p, dr.repeat(Float64(sig2), b), dr.sqrt)]
     grads = []
     for name in jac:
         # symbolic forward passes (keeping the graph's edges for the next one); nothing is
         # evaluated until the end, so the value and every derivative come from one kernel
         dr.forward_from(var[name], flags=dr.ADFlag.ClearVertices)
-        grads.append(dr.grad(R))
-        dr.clear_grad(R)
-    R = dr.detach(R)
-    dr.eval(R, *grads)
-    return [x.numpy().reshape(n, b) for x in (R, *grads)]
+        grads.append([dr.grad(R) for R in outs])
+        for R in outs:
+            dr.clear_grad(R)
+    outs = [dr.detach(R) for R in outs]
+    dr.eval(*outs, *[g for gs in grads for g in gs])
+
+    def arr(parts):
+        return np.concatenate([x.numpy().reshape(n, b) for x in parts], axis=1)
+
+    return [arr(outs)] + [arr(gs) for gs in grads]
 
 
 def grid_sse(observed, theta_rad, thickness_nm, film_ior, substrate_ior, wavelengths_nm):
@@ -149,7 +175,7 @@ def grid_sse(observed, theta_rad, thickness_nm, film_ior, substrate_ior, wavelen
 
     Parameters
     ----------
-    observed : (N, B) measured spectra.
+    observed : (N, B) measured s spectra, or (N, 2 B) s then p spectra.
     theta_rad : (N,) incident angles.
     thickness_nm, film_ior : (N, K) candidates (NaN thickness: candidate skipped, SSE = inf).
 
@@ -166,23 +192,46 @@ def grid_sse(observed, theta_rad, thickness_nm, film_ior, substrate_ior, wavelen
     b = wl.size
     bad = ~np.isfinite(d)
     d = np.where(bad, 0.0, d)
+    # the reflectances through their Airy coefficients (exact; one cosine per band): per
+    # pixel when every candidate of a row has the same film index, else per candidate
+    u = np.sin(theta) ** 2
+    if n and np.all(n2 == n2[:, :1]):
+        C = airy_coefficients(u, n2[:, 0] if np.ptp(n2) > 0 else float(n2.flat[0]), substrate_ior)
+        C = {key: np.broadcast_to(v[:, None], (n, k)) for key, v in C.items()}
+    else:
+        C = airy_coefficients(np.repeat(u, k), n2.ravel(), substrate_ior)
+        C = {key: v.reshape(n, k) for key, v in C.items()}
     out = np.empty((n, k))
     rows = max(1, _CHUNK // (b * k))
+    kernel = _dr_grid if use_drjit(n * k * b) else _np_grid
     for s in range(0, n, rows):
         e = min(n, s + rows)
-        if drjit_available():
-            out[s:e] = _dr_grid(obs[s:e], theta[s:e], d[s:e], n2[s:e], float(substrate_ior), wl)
-        else:
-            R = optics.reflectances(np.cos(theta[s:e])[:, None, None], wl, d[s:e, :, None],
-                                    n2[s:e, :, None], substrate_ior)[0]
-            out[s:e] = np.sum((obs[s:e, None, :] - R) ** 2, axis=-1)
+        out[s:e] = kernel(obs[s:e], d[s:e], {key: v[s:e] for key, v in C.items()}, wl)
     out[bad] = np.inf
     return out
 
 
-def _dr_grid(obs, theta, d, n2, n3, wl):
+def _grid_lanes(O_s, O_p, C, D, K, cos):
+    """Squared residuals of one band for candidates with Airy coefficients ``C``."""
+    c = cos(K * D * C["q2"])
+    r = O_s - (C["a_s"] + C["e_s"] * c) / (1.0 + C["e_s"] * c)
+    r2 = r * r
+    if O_p is not None:
+        rp = O_p - (C["a_p"] + C["e_p"] * c) / (1.0 + C["e_p"] * c)
+        r2 = r2 + rp * rp
+    return r2
+
+
+def _np_grid(obs, d, C, wl):
+    b = wl.size
+    O_p = obs[:, None, b:] if obs.shape[1] == 2 * b else None
+    Cb = {key: v[..., None] for key, v in C.items()}
+    return np.sum(_grid_lanes(obs[:, None, :b], O_p, Cb, d[..., None], 4.0 * np.pi / wl, np.cos), axis=-1)
+
+
+def _dr_grid(obs, d, C, wl):
     import drjit as dr
-    from drjit.llvm.ad import Float64, UInt32
+    from drjit.llvm import Float64, UInt32
 
     n, k = d.shape
     b = wl.size
@@ -190,15 +239,91 @@ def _dr_grid(obs, theta, d, n2, n3, wl):
     idx = dr.arange(UInt32, total)
     pix = idx // (k * b)
     cand = idx // b
-    band = idx % b
-    C = dr.gather(Float64, Float64(np.cos(theta)), pix)
-    D = dr.gather(Float64, Float64(d.ravel()), cand)
-    N2 = dr.gather(Float64, Float64(n2.ravel()), cand)
-    W = dr.gather(Float64, Float64(wl), band)
-    O = dr.gather(Float64, Float64(obs.ravel()), pix * b + band)
-    R = optics.reflectances(C, W, D, N2, n3)[0]
-    r = O - R
-    return dr.block_sum(r * r, b).numpy().reshape(n, k)
+    band = idx - cand * b
+    Cl = {key: dr.gather(Float64, Float64(np.ascontiguousarray(v, dtype=np.float64).ravel()), cand)
+          for key, v in C.items()}
+    D = dr.gather(Float64, Float64(np.ascontiguousarray(d).ravel()), cand)
+    K = dr.gather(Float64, Float64(4.0 * np.pi / wl), band)
+    cols = obs.shape[1]
+    flat = Float64(np.ascontiguousarray(obs, dtype=np.float64).ravel())
+    O_s = dr.gather(Float64, flat, pix * cols + band)
+    O_p = dr.gather(Float64, flat, pix * cols + b + band) if cols == 2 * b else None
+    r2 = _grid_lanes(O_s, O_p, Cl, D, K, dr.cos)
+    dr.eval(r2)
+    return dr.block_sum(r2, b).numpy().reshape(n, k)
+
+
+def airy_coefficients(u, film_ior, substrate_ior, derivatives=False, reference_nm=500.0):
+    """Per pixel, the two coefficients of each polarization's reflectance as a function of
+    the film's round-trip phase Δ, and the film's normal wavenumber factor.
+
+    For a non-absorbing film on a dielectric substrate (real Fresnel amplitudes r12, r23, no
+    total reflection) the Airy sum gives ``R = (a + e cos Δ) / (1 + e cos Δ)`` with
+    ``Δ = 4π q2 d / λ`` and ``q2 = sqrt(n2² - sin² θ)``: ``a`` is the reflectance at a
+    quarter wave (Δ = π/2) and ``e = (R(0) - a) / (1 - R(0))``, ``R(0)`` the bare
+    substrate's. Both are taken from the optics core at one wavelength (the angle dependence
+    sits in them, the wavelength dependence in Δ), so a whole spectrum costs one cosine per
+    band (:func:`airy_spectra`).
+
+    Parameters
+    ----------
+    u : (N,) ``sin² θ``.
+    film_ior, substrate_ior : float or (N,).
+    derivatives : bool
+        Also return the derivatives of every coefficient with respect to ``u`` (central
+        differences).
+
+    Returns
+    -------
+    dict of (N,) arrays ``a_s``, ``e_s``, ``a_p``, ``e_p``, ``q2`` (and ``*_u`` with
+    ``derivatives``).
+    """
+    u = np.clip(np.asarray(u, dtype=np.float64), 0.0, 1.0)
+    if np.ndim(film_ior) == 0 and u.size > _AIRY_TABLE_MIN:
+        return _airy_table(float(film_ior), float(substrate_ior), float(reference_nm))(u, derivatives)
+    n2 = np.broadcast_to(np.asarray(film_ior, dtype=np.float64), u.shape)
+
+    def at(uu):
+        c = np.sqrt(1.0 - uu)
+        q2 = np.sqrt(n2 * n2 - uu)
+        R0s, R0p = optics.reflectances(c, reference_nm, 0.0, n2, substrate_ior)
+        Qs, Qp = optics.reflectances(c, reference_nm, reference_nm / (8.0 * q2), n2, substrate_ior)
+        return {"a_s": Qs, "e_s": (R0s - Qs) / (1.0 - R0s), "a_p": Qp, "e_p": (R0p - Qp) / (1.0 - R0p), "q2": q2}
+
+    out = at(u)
+    if derivatives:
+        h = 1e-6
+        hi, lo = np.minimum(u + h, 1.0 - 1e-12), np.maximum(u - h, 0.0)
+        up, dn = at(hi), at(lo)
+        for k in list(out):
+            out[k + "_u"] = (up[k] - dn[k]) / (hi - lo)
+    return out
+
+
+_AIRY_TABLE_MIN = 256
+_AIRY_KEYS = ("a_s", "e_s", "a_p", "e_p", "q2")
+
+
+@functools.lru_cache(maxsize=8)
+def _airy_table(film_ior, substrate_ior, reference_nm):
+    """:func:`airy_coefficients` of one film tabulated in ``u`` (nodes uniform in θ up to
+    89.9°, 12000 of them), looked up by linear interpolation (values and derivatives: within
+    about 1e-8 and 1e-3 of the optics core's)."""
+    theta = np.linspace(0.0, np.radians(89.9), 12000)
+    nodes = np.sin(theta) ** 2
+    exact = airy_coefficients(nodes, np.full(nodes.shape, film_ior), substrate_ior, derivatives=True,
+                              reference_nm=reference_nm)
+    values = {k: exact[k] for k in _AIRY_KEYS}
+    slopes = {k: exact[k + "_u"] for k in _AIRY_KEYS}
+
+    def evaluate(u, derivatives):
+        uu = np.minimum(u, nodes[-1])
+        out = {k: np.interp(uu, nodes, v) for k, v in values.items()}
+        if derivatives:
+            out.update({k + "_u": np.interp(uu, nodes, v) for k, v in slopes.items()})
+        return out
+
+    return evaluate
 
 
 def peak_reflectance(theta_rad, substrate_ior):

@@ -61,7 +61,7 @@ def reconstruct_kobayashi(cube, wavelengths_nm, substrate_ior, mask):
     t = {}
     t0 = time.perf_counter()
     spectra, pk, stats = peaks_of(cube, mask, wavelengths_nm)
-    check_peak_assumption(spectra, substrate_ior, pk.noise)
+    check_peak_assumption(spectra, wavelengths_nm, substrate_ior)
     theta = _sm.angle_from_peak(pk.value, substrate_ior)
     t["peaks_and_angle"] = time.perf_counter() - t0
 

@@ -178,10 +178,14 @@ def test_published_method_on_a_noiseless_hemisphere():
     assert est.info["peaks"]["peak_none"] > 0  # the rim has no peak in range: recorded
 
 
-def test_film_index_above_substrate_is_reported():
-    cube, mask, _ = _hemisphere(n2=1.8, n3=1.6)
-    with pytest.raises(UserError, match="n2 < n3"):
-        reconstruct_spectral(cube, WL, N3)
+def test_film_index_above_substrate_default_estimates_it_paper_refuses():
+    cube, mask, normals = _hemisphere(n2=1.8, n3=1.6)
+    est = reconstruct_spectral(cube, WL, N3)
+    assert est.film_ior == pytest.approx(1.8, abs=2e-3) and est.info["film_ior_above_substrate"]
+    assert np.median(np.abs(est.thickness_nm[mask] - 400.0)) < 0.5
+    with pytest.raises(UserError, match="n2 < n3") as e:
+        reconstruct_spectral(cube, WL, N3, method=spectral_paper.reconstruct_kobayashi)
+    assert "\n" not in str(e.value)
 
 
 BAD_ARRAY_MESSAGES = {
@@ -280,16 +284,18 @@ def _copy(rendered, tmp_path):
     return dst
 
 
-def _rewrite_spectral(path, fn):
+def _rewrite_spectral(path, fn, name="spectral_s.exr"):
     from thinfilm.core.io import read_exr, write_exr
 
-    ch = read_exr(path / "spectral_s.exr")
-    write_exr(path / "spectral_s.exr", fn(ch))
+    ch = read_exr(path / name)
+    write_exr(path / name, fn(ch))
 
 
 BAD_INPUT_MESSAGES = {
     "missing_band": "spectral_s.exr: missing channel 'band010'",
     "nan": "'band003' contains NaN",
+    "stokes_nan": "stokes_spectral.exr: channel 'S1.band003' contains NaN",
+    "no_captures": "the spectral methods need spectral_s.exr or stokes_spectral.exr, and the dataset holds neither",
     "few_bands": "only 8 spectral bands",
     "no_substrate": "meta.json: no 'substrate_ior'",
     "bad_mask": "mask.exr: mask has shape (5, 5)",
@@ -304,6 +310,9 @@ BAD_INPUT_MESSAGES = {
 def test_bad_input_exits_2_with_one_line(rendered, tmp_path, capsys, case):
     ds = _copy(rendered, tmp_path)
     extra = []
+    if case in ("missing_band", "nan", "no_captures"):
+        # the default reads the Stokes cube when there is one, the s cube without it
+        (ds / "stokes_spectral.exr").unlink()
     if case == "missing_band":
         _rewrite_spectral(ds, lambda ch: {k: v for k, v in ch.items() if k != "band010"})
     elif case == "nan":
@@ -312,6 +321,14 @@ def test_bad_input_exits_2_with_one_line(rendered, tmp_path, capsys, case):
             ch["band003"][5, 5] = np.nan
             return ch
         _rewrite_spectral(ds, poison)
+    elif case == "stokes_nan":
+        def poison_stokes(ch):
+            ch["S1.band003"] = ch["S1.band003"].copy()
+            ch["S1.band003"][5, 5] = np.nan
+            return ch
+        _rewrite_spectral(ds, poison_stokes, "stokes_spectral.exr")
+    elif case == "no_captures":
+        (ds / "spectral_s.exr").unlink()
     elif case == "few_bands":
         meta = json.loads((ds / "meta.json").read_text())
         meta["wavelengths_nm"] = meta["wavelengths_nm"][:8]

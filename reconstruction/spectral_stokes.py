@@ -1,0 +1,538 @@
+"""Per-pixel fits of the linear Stokes cube of a rotating-polarizer hyperspectral capture.
+
+A specular pixel of zenith θ and azimuth φ (orthographic camera) reflects the unpolarized
+dome as ``S0 = (R_s + R_p)/2``, ``(S1, S2) = -P (cos 2φ, sin 2φ)`` with ``P = (R_s - R_p)/2``
+(:func:`thinfilm.core.conventions.specular_stokes`) at every band, ``R_s`` and ``R_p`` from
+the optics core. The unknowns of a pixel are carried as ``x = (v1, v2, d)`` with
+``(v1, v2) = u (cos 2φ, sin 2φ)`` and ``u = sin² θ``: then ``(S1, S2) = -Q(u, d) (v1, v2)``
+with ``Q = P / u``, smooth through normal incidence, where φ is undefined (the
+parameterization of the polarized-RGB inversion, :mod:`.rgb_invert`). The angle of
+polarization fixes φ modulo 180°, and the s and p spectra together fix θ at every pixel:
+with the film index known, each pixel's zenith, azimuth axis and thickness come from one
+least-squares fit to all 3 B values.
+
+:func:`stokes_normal_equations` evaluates the model and its Gauss-Newton normal equations
+for many pixels at once: on Dr.Jit's LLVM backend one fused kernel over pixels × bands
+(forward-mode derivatives, sums over bands in the kernel), else on NumPy by central
+differences. :func:`fit_stokes_pixels` runs the batched Levenberg-Marquardt of :mod:`.lm`
+on it.
+
+The noise of the Stokes fit of a four-angle rotating polarizer (0, 45, 90, 135°) is
+``σ(S1) = σ(S2) = √2 σ(S0)``; the residuals are weighted accordingly (``w1 = w0 / √2``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from thinfilm.bsdf import optics
+
+from .lm import levenberg_marquardt
+from .peaks import _band_noise
+from .spectral_model import airy_coefficients, use_drjit
+
+__all__ = ["U_MAX", "stokes_model", "stokes_normal_equations", "fit_stokes_pixels", "axis_from_stokes",
+           "x_to_angles", "angles_to_x"]
+
+#: largest ``u = sin² θ`` a fit may reach (θ = 89.5°)
+U_MAX = float(np.sin(np.radians(89.5)) ** 2)
+_U_EPS = 1e-9
+_CHUNK_LANES = 1 << 18  # pixels × bands of one Dr.Jit evaluation of the normal equations
+
+
+def angles_to_x(theta_rad, phi_rad, thickness_nm):
+    """``(v1, v2, d)`` (N, 3) from zenith, azimuth (radians) and thickness."""
+    u = np.sin(np.asarray(theta_rad, dtype=np.float64)) ** 2
+    phi = np.asarray(phi_rad, dtype=np.float64)
+    return np.stack([u * np.cos(2 * phi), u * np.sin(2 * phi), np.asarray(thickness_nm, dtype=np.float64)], -1)
+
+
+def x_to_angles(x):
+    """Zenith (radians), azimuth modulo π (radians, in [0, π)) and thickness of ``x``."""
+    u = np.clip(np.hypot(x[:, 0], x[:, 1]), 0.0, 1.0)
+    return np.arcsin(np.sqrt(u)), np.mod(0.5 * np.arctan2(x[:, 1], x[:, 0]), np.pi), x[:, 2]
+
+
+def axis_from_stokes(S1, S2, weights=None):
+    """Azimuth modulo π (radians) from the linear Stokes spectra (N, B) of specular pixels.
+
+    The points ``(S1, S2)`` of all bands lie on one line through the origin at angle 2φ + π
+    (``P`` may change sign between bands); its direction is the principal axis of their
+    second moments, and ``P`` positive on balance (``R_s > R_p``, as on dielectrics) picks
+    which of the two perpendicular candidates it is.
+
+    Returns
+    -------
+    phi : (N,) radians in [0, π); strength : (N,) the polarized signal along the axis
+    (``Σ_b P_b`` along the chosen direction, >= 0).
+    """
+    S1 = np.asarray(S1, dtype=np.float64)
+    S2 = np.asarray(S2, dtype=np.float64)
+    w = 1.0 if weights is None else weights
+    beta = 0.5 * np.arctan2(2.0 * np.sum(w * S1 * S2, axis=-1), np.sum(w * (S1 * S1 - S2 * S2), axis=-1))
+    proj = np.sum(w * (S1 * np.cos(beta)[..., None] + S2 * np.sin(beta)[..., None]), axis=-1)
+    # along beta the points are P (cos(2φ + π), sin(2φ + π)): 2φ = beta - π where Σ P > 0
+    two_phi = np.where(proj > 0, beta - np.pi, beta)
+    return np.mod(0.5 * two_phi, np.pi), np.abs(proj)
+
+
+def stokes_model(u, thickness_nm, film_ior, substrate_ior, wavelengths_nm):
+    """``S0`` and ``Q = P / u`` (N, B) of pixels with ``u = sin² θ`` and thickness (N,), by
+    the optics core (NumPy)."""
+    u = np.clip(np.asarray(u, dtype=np.float64), 0.0, 1.0)
+    c = np.sqrt(1.0 - u)[:, None]
+    n2 = np.broadcast_to(np.asarray(film_ior, dtype=np.float64), u.shape)[:, None]
+    Rs, Rp = optics.reflectances(c, np.asarray(wavelengths_nm, dtype=np.float64)[None, :],
+                                 np.asarray(thickness_nm, dtype=np.float64)[:, None], n2, substrate_ior)
+    return 0.5 * (Rs + Rp), 0.5 * (Rs - Rp) / np.maximum(u, _U_EPS)[:, None]
+
+
+class StokesData:
+    """Measured Stokes spectra of N pixels, with their residual weights, ready for repeated
+    evaluations of the normal equations (on Dr.Jit they are uploaded once).
+
+    Parameters
+    ----------
+    S0, S1, S2 : (N, B) measured Stokes spectra.
+    wavelengths_nm : (B,).
+    w0, w1 : float or (N,) residual weights (``w1`` defaults to ``w0 / √2``).
+    """
+
+    def __init__(self, S0, S1, S2, wavelengths_nm, w0=1.0, w1=None):
+        self.S = [np.ascontiguousarray(a, dtype=np.float64) for a in (S0, S1, S2)]
+        n, b = self.S[0].shape
+        self.n, self.b = n, b
+        self.wl = np.asarray(wavelengths_nm, dtype=np.float64)
+        self.w0 = np.broadcast_to(np.asarray(w0, dtype=np.float64), (n,)).copy()
+        self.w1 = self.w0 / np.sqrt(2.0) if w1 is None else np.broadcast_to(np.asarray(w1, dtype=np.float64), (n,)).copy()
+        self._device = None
+
+    def device(self):
+        """The observations as flat Dr.Jit arrays (uploaded on first use)."""
+        if self._device is None:
+            from drjit.llvm import Float64
+
+            self._device = [Float64(a.ravel()) for a in self.S]
+        return self._device
+
+    def normal_equations(self, x, idx, film_ior, substrate_ior):
+        """Gauss-Newton normal equations at ``x`` (n, 3) of the pixels ``idx`` (n,).
+
+        Residuals per band: ``w0 (S0 - S0(u, d))``, ``w1 (S1 + Q v1)``, ``w1 (S2 + Q v2)``.
+
+        Returns
+        -------
+        H : (n, 3, 3) ``JᵀJ``; g : (n, 3) ``Jᵀr`` (J the Jacobian of the residuals); cost :
+        (n,) ``Σ r²``.
+        """
+        x = np.asarray(x, dtype=np.float64)
+        idx = np.asarray(idx)
+        n2 = np.broadcast_to(np.asarray(film_ior, dtype=np.float64), (idx.size,))
+        if use_drjit(idx.size * self.b, minimum=1 << 14):
+            # in chunks: the band terms of a chunk stay in (reused) memory of a few tens of MB
+            rows = max(1, _CHUNK_LANES // self.b)
+            parts = [_dr_airy_neq(self, x[s:s + rows], idx[s:s + rows], n2[s:s + rows], float(substrate_ior))
+                     for s in range(0, idx.size, rows)]
+            sums = [np.concatenate(c) for c in zip(*parts)]
+        else:
+            sums = _np_airy_neq([a[idx] for a in self.S], x, n2, float(substrate_ior), self.wl, self.w0[idx],
+                                self.w1[idx])
+        h00, h01, h02, h11, h12, h22, g0, g1, g2, c = sums
+        H = np.stack([np.stack([h00, h01, h02], -1), np.stack([h01, h11, h12], -1),
+                      np.stack([h02, h12, h22], -1)], -2)
+        return H, np.stack([g0, g1, g2], -1), c
+
+
+def stokes_normal_equations(S0, S1, S2, x, film_ior, substrate_ior, wavelengths_nm, w0=1.0, w1=None):
+    """Gauss-Newton normal equations of the Stokes model at ``x`` (N, 3) for N pixels
+    (:meth:`StokesData.normal_equations` of all of them)."""
+    data = StokesData(S0, S1, S2, wavelengths_nm, w0, w1)
+    return data.normal_equations(x, np.arange(data.n), film_ior, substrate_ior)
+
+
+def _residual_parts(O0, O1, O2, S0m, Q, S0u, Qu, S0d, Qd, V1, V2, E1, E2, w0, w1):
+    """Residuals and their Jacobian rows (backend-generic): returns (r0, r1, r2) and the
+    three rows (∂r/∂v1, ∂r/∂v2, ∂r/∂d) of each."""
+    r0 = w0 * (O0 - S0m)
+    r1 = w1 * (O1 + Q * V1)
+    r2 = w1 * (O2 + Q * V2)
+    J0 = (-w0 * S0u * E1, -w0 * S0u * E2, -w0 * S0d)
+    J1 = (w1 * (Q + Qu * E1 * V1), w1 * (Qu * E2 * V1), w1 * (Qd * V1))
+    J2 = (w1 * (Qu * E1 * V2), w1 * (Q + Qu * E2 * V2), w1 * (Qd * V2))
+    return (r0, r1, r2), (J0, J1, J2)
+
+
+def _products(r, J):
+    """The 10 band terms of the normal equations: H (upper triangle), g, cost."""
+    out = []
+    for a, c in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)):
+        out.append(sum(Jk[a] * Jk[c] for Jk in J))
+    for a in range(3):
+        out.append(sum(Jk[a] * rk for Jk, rk in zip(J, r)))
+    out.append(sum(rk * rk for rk in r))
+    return out
+
+
+def _airy_lanes(C, D, K, ops):
+    """Band values of ``S0``, ``Q`` and their derivatives in ``u`` and ``d`` from the
+    per-pixel Airy coefficients ``C`` (broadcast to the bands), thickness ``D`` and
+    ``K = 4π / λ`` (backend-generic: NumPy or Dr.Jit)."""
+    phase = K * D * C["q2"]
+    c, s_ = ops.cos(phase), ops.sin(phase)
+    dphase_u = K * D * C["q2_u"]
+    dphase_d = K * C["q2"]
+    out = {}
+    for pol in ("s", "p"):
+        a, e = C["a_" + pol], C["e_" + pol]
+        den = 1.0 / (1.0 + e * c)
+        R = (a + e * c) * den
+        dR_dc = e * (1.0 - a) * den * den
+        R_u = C["a_" + pol + "_u"] * den + C["e_" + pol + "_u"] * c * (1.0 - a) * den * den - dR_dc * s_ * dphase_u
+        R_d = -dR_dc * s_ * dphase_d
+        out[pol] = (R, R_u, R_d)
+    (Rs, Rs_u, Rs_d), (Rp, Rp_u, Rp_d) = out["s"], out["p"]
+    inv_u = 1.0 / C["u"]
+    S0m, S0u, S0d = 0.5 * (Rs + Rp), 0.5 * (Rs_u + Rp_u), 0.5 * (Rs_d + Rp_d)
+    Q = 0.5 * (Rs - Rp) * inv_u
+    Qu = (0.5 * (Rs_u - Rp_u) - Q) * inv_u
+    Qd = 0.5 * (Rs_d - Rp_d) * inv_u
+    return S0m, Q, S0u, Qu, S0d, Qd
+
+
+def _pixel_terms(x, n2, n3):
+    u = np.hypot(x[:, 0], x[:, 1])
+    uc = np.clip(u, _U_EPS, 1.0)
+    if n2.size and np.all(n2 == n2[0]):
+        n2 = float(n2[0])                     # one film index: its tabulated coefficients
+    C = airy_coefficients(uc, n2, n3, derivatives=True)
+    C["u"] = uc
+    us = np.where(u > _U_EPS, u, 1.0)
+    E1 = np.where(u > _U_EPS, x[:, 0] / us, 0.0)
+    E2 = np.where(u > _U_EPS, x[:, 1] / us, 0.0)
+    return C, E1, E2
+
+
+def _np_airy_neq(O, x, n2, n3, wl, w0, w1):
+    C, E1, E2 = _pixel_terms(x, n2, n3)
+    Cb = {k: v[:, None] for k, v in C.items()}
+    S0m, Q, S0u, Qu, S0d, Qd = _airy_lanes(Cb, x[:, 2:3], (4.0 * np.pi / wl)[None, :], _NP_OPS)
+    r, J = _residual_parts(O[0], O[1], O[2], S0m, Q, S0u, Qu, S0d, Qd, x[:, :1], x[:, 1:2], E1[:, None], E2[:, None],
+                           w0[:, None], w1[:, None])
+    return [np.sum(t, axis=1) for t in _products(r, J)]
+
+
+def _dr_airy_neq(data, x, idx, n2, n3):
+    """The normal equations on Dr.Jit, one lane per pixel and band (the band terms are
+    evaluated, then summed per pixel)."""
+    import drjit as dr
+    from drjit.llvm import Float64, UInt32
+
+    n, b = idx.size, data.b
+    lane = dr.arange(UInt32, n * b)
+    pix = lane // b
+    band = lane - pix * b
+    C, E1, E2 = _pixel_terms(x, n2, n3)
+    P = {k: dr.gather(Float64, Float64(np.ascontiguousarray(v, dtype=np.float64)), pix)
+         for k, v in dict(C, d=x[:, 2], v1=x[:, 0], v2=x[:, 1], e1=E1, e2=E2, w0=data.w0[idx],
+                          w1=data.w1[idx]).items()}
+    K = dr.gather(Float64, Float64(4.0 * np.pi / data.wl), band)
+    O = data.device()
+    j = dr.gather(UInt32, UInt32(np.asarray(idx, dtype=np.uint32) * np.uint32(b)), pix) + band
+    S0m, Q, S0u, Qu, S0d, Qd = _airy_lanes(P, P["d"], K, dr)
+    r, J = _residual_parts(dr.gather(Float64, O[0], j), dr.gather(Float64, O[1], j), dr.gather(Float64, O[2], j),
+                           S0m, Q, S0u, Qu, S0d, Qd, P["v1"], P["v2"], P["e1"], P["e2"], P["w0"], P["w1"])
+    terms = _products(r, J)
+    dr.eval(*terms)
+    sums = [dr.block_sum(t_, b) for t_ in terms]
+    dr.eval(*sums)
+    return [s_.numpy() for s_ in sums]
+
+
+class _NpOps:
+    cos = staticmethod(np.cos)
+    sin = staticmethod(np.sin)
+
+
+_NP_OPS = _NpOps()
+
+
+def fit_stokes_pixels(S0, S1, S2, x0, film_ior, substrate_ior, wavelengths_nm, w0=1.0, iterations=10,
+                      max_step_u=0.1, max_step_nm=40.0, thickness_prior=None):
+    """Levenberg-Marquardt of every pixel's ``(v1, v2, d)`` from ``x0`` (:mod:`.lm`).
+
+    ``thickness_prior``: optional ``(d_prior, weight)`` arrays (N,): a Gaussian prior
+    residual ``weight (d_prior - d)`` (in the units of the weighted data residuals) is added,
+    with its cost (the data cost alone is ``aux``).
+
+    Returns
+    -------
+    :class:`thinfilm.reconstruction.lm.LMResult` (``H`` is the Gauss-Newton information
+    ``JᵀJ`` of the data at the solution, in the order (v1, v2, d); ``aux`` the data cost).
+    """
+    data = S0 if isinstance(S0, StokesData) else StokesData(S0, S1, S2, wavelengths_nm, w0)
+    n = data.n
+    n2 = np.broadcast_to(np.asarray(film_ior, dtype=np.float64), (n,))
+
+    def normal_equations(x, idx):
+        H, g, cost = data.normal_equations(x, idx, n2[idx], substrate_ior)
+        data_cost = cost.copy()
+        if thickness_prior is not None:
+            d_p, w_p = thickness_prior[0][idx], thickness_prior[1][idx]
+            H[:, 2, 2] += w_p ** 2
+            g[:, 2] += w_p ** 2 * (x[:, 2] - d_p)
+            cost = cost + (w_p * (x[:, 2] - d_p)) ** 2
+        return H, g, cost, data_cost
+
+    def project(x):
+        u = np.hypot(x[:, 0], x[:, 1])
+        f = np.where(u > U_MAX, U_MAX / np.maximum(u, 1e-300), 1.0)
+        x[:, 0] *= f
+        x[:, 1] *= f
+        x[:, 2] = np.maximum(x[:, 2], 0.0)
+        return x
+
+    return levenberg_marquardt(project(np.array(x0, dtype=np.float64)), normal_equations, iterations,
+                               project=project, max_step=[max_step_u, max_step_u, max_step_nm],
+                               step_tol=[3e-5, 3e-5, 0.1], lam0=1e-3, lam_down=1.0 / 3.0, lam_up=5.0,
+                               floor_rel=1e-9, floor_abs=1e-18)
+
+
+def normal_information(H):
+    """Information (precision, in units of the residuals' inverse variance) on each pixel's
+    image-plane normal ``(a, b) = sin θ (cos φ, sin φ)`` from the fit's Gauss-Newton matrix in
+    (v1, v2, d), the thickness marginalized out (``v = (a² - b², 2ab)``): its mean
+    eigenvalue (N,) and the 2 x 2 matrices (N, 2, 2) of the representative with azimuth
+    ``phi``."""
+    Hvv = H[:, :2, :2]
+    Hvd = H[:, :2, 2]
+    Hdd = np.maximum(H[:, 2, 2], 1e-300)
+    return Hvv - Hvd[:, :, None] * Hvd[:, None, :] / Hdd[:, None, None]
+
+
+def _nearest(mask, which):
+    """For every mask pixel (in mask order), the index (in mask order) of the nearest mask
+    pixel where ``which`` holds."""
+    from scipy import ndimage
+
+    img = np.full(mask.shape, -1, dtype=np.int64)
+    img[mask] = np.where(which, np.arange(which.size), -1)
+    _, (ir, ic) = ndimage.distance_transform_edt(img < 0, return_indices=True)
+    return img[ir, ic][mask]
+
+
+def _interpolate_seeds(mask, seeds, *values, radius=2.0):
+    """Per mask pixel, the Gaussian-weighted mean (σ = ``radius`` px) of each of ``values``
+    over the seeds within reach, where the seeds' values agree; the nearest seed's value
+    elsewhere (a pixel between seeds of two surfaces, or far from any seed)."""
+    from scipy import ndimage
+
+    w = np.zeros(mask.shape)
+    w[mask] = seeds
+    den = ndimage.gaussian_filter(w, radius, truncate=2.0)
+    src = _nearest(mask, seeds)
+    out = []
+    for v in values:
+        img = np.zeros(mask.shape)
+        img[mask] = np.where(seeds, v, 0.0)
+        mean = ndimage.gaussian_filter(img, radius, truncate=2.0)[mask] / np.maximum(den[mask], 1e-12)
+        sq = np.zeros(mask.shape)
+        sq[mask] = np.where(seeds, v * v, 0.0)
+        var = ndimage.gaussian_filter(sq, radius, truncate=2.0)[mask] / np.maximum(den[mask], 1e-12) - mean ** 2
+        near = v[src]
+        # the seeds around a pixel disagree (an edge, another order): the nearest one
+        spread = np.sqrt(np.maximum(var, 0.0))
+        agree = (den[mask] > 1e-3) & (spread < 0.05 * np.maximum(np.abs(mean), 1e-9) + 1e-9)
+        out.append(np.where(agree, mean, near))
+    return out
+
+
+def _local_median(values, mask, size):
+    """Median of ``values`` over the mask pixels of each ``size`` x ``size`` window."""
+    import warnings
+
+    v = np.where(mask, values, np.nan)
+    pad = size // 2
+    H, W = v.shape
+    win = np.lib.stride_tricks.sliding_window_view(np.pad(v, pad, constant_values=np.nan), (size, size))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        med = np.nanmedian(win.reshape(H, W, -1), axis=-1)
+    return np.where(np.isfinite(med), med, values)
+
+
+def reconstruct_stokes(stokes, wavelengths_nm, substrate_ior, mask, smoothness=2.0, surface_sigma=0.01,
+                       misfit=4.0, iterations=8, thickness_sigma_nm=15.0, seed_step=3, max_chi2=10.0):
+    """The default spectral method on a Stokes capture (see :mod:`.spectral_default`)."""
+    import time
+
+    from thinfilm.core.io import Estimate
+
+    from . import spectral_fit as _sf
+    from .azimuth import resolve_azimuth_global
+    from .surface import height_to_normals, integrate_normals
+
+    wl = np.asarray(wavelengths_nm, dtype=np.float64)
+    n3 = float(substrate_ior)
+    b = wl.size
+    t = {}
+    t0 = time.perf_counter()
+    S0, S1, S2 = (np.asarray(np.asarray(stokes[k])[mask], dtype=np.float64) for k in ("S0", "S1", "S2"))
+    n = S0.shape[0]
+    phi0, _ = axis_from_stokes(S1, S2)
+
+    def sp_of(rows):
+        """R_s and R_p spectra (s then p) of some pixels: S0 ± P along the azimuth's axis."""
+        c, s_ = np.cos(2 * phi0[rows])[:, None], np.sin(2 * phi0[rows])[:, None]
+        p_ = -(S1[rows] * c + S2[rows] * s_)
+        return np.concatenate([S0[rows] + p_, S0[rows] - p_], axis=1)
+
+    noise = np.maximum(_band_noise(S0), 1e-9)
+    t["prepare"] = time.perf_counter() - t0
+
+    # 1. the film index, once for the object, on either side of the substrate's (from an even
+    # sample of the pixels)
+    t0 = time.perf_counter()
+    sample = np.unique(np.linspace(0, n - 1, min(n, 4000)).round().astype(np.int64))
+    n2, n2_info = _sf.estimate_film_ior_either_side(sp_of(sample), wl, n3)
+    above = n2_info["film_ior_above_substrate"]
+    t["film_ior"] = time.perf_counter() - t0
+
+    # 2. every pixel's (v, d). Seeds on a sparse grid start from their extremum (Eq. 21) and
+    # the best order of interference (Eq. 29) and are fitted first; every other pixel starts
+    # from its nearest fitted seed (surface and film are continuous), with its own azimuth
+    t0 = time.perf_counter()
+    rows, cols = np.nonzero(mask)
+    grid = (rows % seed_step == 0) & (cols % seed_step == 0)
+    if grid.sum() < 50:
+        grid = np.ones(n, dtype=bool)
+    gi = np.nonzero(grid)[0]
+    sp_g = sp_of(gi)
+    pk, th_ext = _sf.extrema_angles(sp_g[:, :b], wl, n3, above)
+    ok = np.isfinite(th_ext)
+    if not ok.any():
+        gi = np.arange(n)
+        sp_g = sp_of(gi)
+        pk, th_ext = _sf.extrema_angles(sp_g[:, :b], wl, n3, above)
+        ok = np.isfinite(th_ext)
+    seeds = gi[ok]
+    d_s = _sf.initial_thickness(sp_g[ok], th_ext[ok], pk.wavelength_nm[ok], n2, n3, wl)
+    t["init"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    fs = fit_stokes_pixels(S0[seeds], S1[seeds], S2[seeds], angles_to_x(th_ext[ok], phi0[seeds], d_s), n2, n3, wl,
+                           iterations=iterations)
+    is_seed = np.zeros(n, dtype=bool)
+    is_seed[seeds] = True
+    # seeds that did not fit (a wrong extremum or order) seed nobody
+    good_seed = np.zeros(n, dtype=bool)
+    good_seed[seeds] = fs.cost < misfit * 3 * b * noise[seeds] ** 2
+    if not good_seed.any():
+        good_seed[seeds] = True
+    x = np.zeros((n, 3))
+    x[seeds] = fs.x
+    th_s, _, d_s2 = x_to_angles(x)
+    th_i, d_i = _interpolate_seeds(mask, good_seed, th_s, d_s2)
+    x0 = angles_to_x(th_i, phi0, d_i)
+    rest = np.nonzero(~is_seed)[0]
+    fit = fit_stokes_pixels(S0[rest], S1[rest], S2[rest], x0[rest], n2, n3, wl, iterations=iterations)
+    H = np.zeros((n, 3, 3))
+    cost = np.zeros(n)
+    x[rest], H[rest], cost[rest] = fit.x, fit.H, fit.cost
+    H[seeds], cost[seeds] = fs.H, fs.cost
+    t["fit"] = time.perf_counter() - t0
+    # fits far above the noise started in a wrong order: restart them from their nearest
+    # well-fitted pixel and from a coarse grid, keep the best
+    t0 = time.perf_counter()
+    bad = cost > misfit * 3 * b * noise ** 2
+    if bad.any() and (~bad).any():
+        src = _nearest(mask, ~bad)[bad]
+        starts = [x[src]]
+        th_g, d_g = _sf._init_no_peak(sp_of(np.nonzero(bad)[0]), n2, n3, wl, x[src, 2])
+        starts.append(angles_to_x(th_g, phi0[bad], d_g))
+        for x_start in starts:
+            f2 = fit_stokes_pixels(S0[bad], S1[bad], S2[bad], x_start, n2, n3, wl, iterations=iterations)
+            better = f2.cost < cost[bad]
+            idx = np.nonzero(bad)[0][better]
+            x[idx], H[idx], cost[idx] = f2.x[better], f2.H[better], f2.cost[better]
+    # thickness varies smoothly over a film: where the spectrum leaves the order open (weak
+    # fringes, an index close to the substrate's), a pixel takes the order nearest the
+    # local median of its neighbours (a Gaussian prior of thickness_sigma_nm); pixels far
+    # from it start from it. Pixels whose own data fix the thickness much better than the
+    # prior and that agree with their neighbours are left as they are.
+    d_img = np.full(mask.shape, np.nan)
+    d_img[mask] = x[:, 2]
+    d_med = _local_median(d_img, mask, 7)[mask]
+    far = np.abs(x[:, 2] - d_med) > 2.0 * thickness_sigma_nm
+    info_d = H[:, 2, 2] - np.einsum("ni,nij,nj->n", H[:, 2, :2], np.linalg.pinv(H[:, :2, :2]), H[:, :2, 2])
+    weak = info_d < 25.0 * (noise / thickness_sigma_nm) ** 2
+    redo = far | weak | (np.abs(x[:, 2] - d_med) > 0.5 * thickness_sigma_nm)
+    if redo.any():
+        x_start = x[redo].copy()
+        x_start[far[redo], 2] = d_med[redo][far[redo]]
+        prior = (d_med[redo], noise[redo] / thickness_sigma_nm)
+        f3 = fit_stokes_pixels(S0[redo], S1[redo], S2[redo], x_start, n2, n3, wl, iterations=iterations,
+                               thickness_prior=prior)
+        x[redo], H[redo], cost[redo] = f3.x, f3.H, f3.aux
+    t["prior_refit"] = int(redo.sum())
+    t["refit"] = time.perf_counter() - t0
+
+    # 3. one surface: the azimuth's sign for the whole object, then the normals integrated to
+    # a height field (weighted by their information) and each pixel's normal fused with it
+    t0 = time.perf_counter()
+    theta, phi, d = x_to_angles(x)
+    Iv = normal_information(H) / noise[:, None, None] ** 2
+    a, bb = np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi)
+    Jn = 2.0 * np.stack([np.stack([a, -bb], -1), np.stack([bb, a], -1)], axis=-2)
+    In = np.einsum("nki,nkl,nlj->nij", Jn, Iv, Jn)
+    w_n = 0.5 * np.trace(In, axis1=1, axis2=2)
+    zen = np.full(mask.shape, np.nan)
+    azm = np.full(mask.shape, np.nan)
+    zen[mask], azm[mask] = np.degrees(theta), np.degrees(phi)
+    w_img = np.zeros(mask.shape)
+    w_img[mask] = w_n
+    # confidence in the azimuth's axis: 1 where its standard deviation is below 0.05 rad
+    conf = np.clip(w_img * np.sin(np.radians(np.nan_to_num(zen))) ** 2 * 0.05 ** 2, 0.0, 1.0)
+    az = resolve_azimuth_global(azm, zen, mask, conf)
+    t["azimuth"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    from thinfilm.core.conventions import angles_to_normals
+
+    normals = angles_to_normals(zen, np.nan_to_num(az))
+    nz = np.clip(normals[..., 2], 0.0, 1.0)
+    weights = np.where(mask, w_img * nz ** 4, 0.0)
+    weights = weights / max(np.mean(weights[mask]), 1e-300)
+    height = integrate_normals(normals, mask, weights, smoothness=smoothness)
+    n_surf = height_to_normals(height, mask)
+    # fuse: Gaussian data term (information In) and the surface's normal (σ = surface_sigma)
+    ns = n_surf[mask][:, :2]
+    sgn = np.where(np.cos(np.radians(az[mask]) - phi) >= 0, 1.0, -1.0)
+    nd = sgn[:, None] * np.stack([a, bb], -1)
+    A = In + np.eye(2)[None] / surface_sigma ** 2
+    rhs = np.einsum("nij,nj->ni", In, nd) + ns / surface_sigma ** 2
+    nxy = np.linalg.solve(A, rhs[..., None])[..., 0]
+    r = np.linalg.norm(nxy, axis=1)
+    nxy = np.where(r[:, None] > 0.9999, nxy / np.maximum(r, 1e-12)[:, None] * 0.9999, nxy)
+    out_n = np.zeros(mask.shape + (3,))
+    out_n[mask] = np.concatenate([nxy, np.sqrt(1.0 - np.sum(nxy ** 2, axis=1))[:, None]], axis=1)
+    t["surface"] = time.perf_counter() - t0
+
+    # 4. thickness at the final normal: the fit's linear coupling of d to v
+    t0 = time.perf_counter()
+    th_f = np.arcsin(np.clip(np.linalg.norm(nxy, axis=1), 0.0, 1.0))
+    ph_f = np.arctan2(nxy[:, 1], nxy[:, 0])
+    dv = angles_to_x(th_f, ph_f, d)[:, :2] - x[:, :2]
+    shift = -np.einsum("ni,ni->n", H[:, 2, :2], dv) / np.maximum(H[:, 2, 2], 1e-300)
+    d_f = np.maximum(d + np.clip(shift, -20.0, 20.0), 0.0)
+    t["thickness"] = time.perf_counter() - t0
+    thickness = np.full(mask.shape, np.nan)
+    thickness[mask] = d_f
+    # pixels the model cannot explain (an inter-reflection in a concave part, a rim the
+    # light grazes) are reported invalid
+    chi2 = cost / (3 * b * noise ** 2)
+    explained = np.zeros(mask.shape, dtype=bool)
+    explained[mask] = chi2 < max_chi2
+    valid = mask & np.isfinite(thickness) & explained
+    info = {"timings_s": t, **n2_info, "capture": "stokes", "refit_poor": int(bad.sum()),
+            "unexplained_pixels": int(np.sum(chi2 >= max_chi2)),
+            "smoothness": smoothness}
+    return Estimate(normals=out_n, thickness_nm=thickness, valid=valid, film_ior=float(n2),
+                    substrate_ior=n3, height=height, info=info)
