@@ -90,9 +90,30 @@ def band_channels(cube, prefix: str = "") -> dict:
     return {f"{prefix}{band_channel(b)}": cube[..., b] for b in range(cube.shape[-1])}
 
 
+def _openexr():
+    """The OpenEXR module, its thread pool sized once to the cores this process may use (ZIP
+    blocks are then compressed and decompressed in parallel; the bytes written are the same
+    for any number of threads)."""
+    import OpenEXR
+
+    global _EXR_THREADS_SET
+    if not _EXR_THREADS_SET:
+        _EXR_THREADS_SET = True
+        try:
+            cores = len(os.sched_getaffinity(0))
+        except (AttributeError, OSError):
+            cores = os.cpu_count() or 1
+        if OpenEXR.global_thread_count() < min(cores, 8):
+            OpenEXR.set_global_thread_count(min(cores, 8))
+    return OpenEXR
+
+
+_EXR_THREADS_SET = False
+
+
 def write_exr(path, channels: dict) -> None:
     """Write 2-D float32 channels (name → H×W array) to an EXR file (ZIP, deterministic)."""
-    import OpenEXR
+    OpenEXR = _openexr()
 
     shapes = {np.shape(v) for v in channels.values()}
     if len(shapes) != 1 or len(next(iter(shapes))) != 2:
@@ -170,7 +191,7 @@ def read_exr(path) -> dict:
     """Read every channel of an EXR file as float32 H×W arrays. A missing, damaged or
     truncated file is one :class:`UserError` naming it (OpenEXR's own messages on the
     terminal are caught and left out)."""
-    import OpenEXR
+    OpenEXR = _openexr()
 
     path = Path(path)
     if not path.is_file():

@@ -132,3 +132,27 @@ def test_estimate_round_trip(tmp_path):
     np.testing.assert_allclose(back.normals[valid], n[valid], atol=1e-7)
     assert np.isnan(back.thickness_nm[~valid]).all()
     assert (tmp_path / "surface.ply").is_file()
+
+
+def test_exr_bytes_do_not_depend_on_the_thread_count(tmp_path):
+    """OpenEXR compresses ZIP blocks on a thread pool; the file must be the same bytes with
+    one thread as with several (the same spec and seed give the same dataset anywhere)."""
+    import OpenEXR
+
+    from thinfilm.core.io import read_exr
+
+    rng = np.random.default_rng(3)
+    channels = {f"band{b:03d}": rng.random((97, 61)).astype(np.float32) for b in range(5)}
+    before = OpenEXR.global_thread_count()
+    paths = []
+    try:
+        for threads in (0, 1, 4):
+            OpenEXR.set_global_thread_count(threads)
+            paths.append(tmp_path / f"t{threads}.exr")
+            write_exr(paths[-1], channels)
+    finally:
+        OpenEXR.set_global_thread_count(before)
+    data = [p.read_bytes() for p in paths]
+    assert data[0] == data[1] == data[2]
+    back = read_exr(paths[0])
+    assert all(np.array_equal(back[k], v) for k, v in channels.items())
