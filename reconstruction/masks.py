@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 
-__all__ = ["mask_from_intensity", "otsu_threshold", "outward_directions", "resolve_azimuth"]
+__all__ = ["mask_from_intensity", "otsu_threshold", "outward_directions", "resolve_azimuth", "masked_median"]
 
 
 def mask_from_intensity(intensity, min_pixels: int = 16):
@@ -61,6 +61,32 @@ def mask_from_intensity(intensity, min_pixels: int = 16):
         background = float(np.percentile(v[~filled], 99.9))
         mask = mask | (gaps & (v > 3.0 * max(background, floor)))
     return mask
+
+
+def masked_median(values, mask, size: int = 5):
+    """Median of ``values`` over the mask pixels of the ``size`` × ``size`` window around each
+    mask pixel (a median filter that ignores everything outside the mask).
+
+    Returns an (H, W) array: the median at mask pixels, ``values`` elsewhere.
+
+    >>> v = np.array([[1.0, 2.0, 9.0], [3.0, 4.0, 9.0]])
+    >>> m = np.array([[True, True, False], [True, True, False]])
+    >>> masked_median(v, m, 3)[0].tolist()
+    [2.5, 2.5, 9.0]
+    """
+    values = np.asarray(values, dtype=np.float64)
+    mask = np.asarray(mask, dtype=bool)
+    pad = size // 2
+    v = np.pad(np.where(mask, values, np.nan), pad, constant_values=np.nan)
+    rows, cols = np.nonzero(mask)
+    win = np.lib.stride_tricks.sliding_window_view(v, (size, size))[rows, cols].reshape(rows.size, -1)
+    win = np.sort(win, axis=1)                      # NaN (outside the mask) sort last
+    k = np.sum(np.isfinite(win), axis=1)            # >= 1: the pixel itself is in the mask
+    lo = np.take_along_axis(win, ((k - 1) // 2)[:, None], axis=1)[:, 0]
+    hi = np.take_along_axis(win, (k // 2)[:, None], axis=1)[:, 0]
+    out = values.copy()
+    out[rows, cols] = 0.5 * (lo + hi)
+    return out
 
 
 def otsu_threshold(values, bins: int = 256) -> float:

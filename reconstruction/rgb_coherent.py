@@ -31,6 +31,7 @@ from thinfilm.core.io import Estimate
 from thinfilm.core.progress import progress_bar
 
 from .azimuth import resolve_azimuth_global
+from .masks import masked_median
 from .rgb_capture import RGBCapture
 
 __all__ = ["reconstruct_coherent"]
@@ -47,21 +48,6 @@ def _normal_information(info, n_xy):
     a, b = n_xy[:, 0], n_xy[:, 1]
     J = 2.0 * np.stack([np.stack([a, -b], -1), np.stack([b, a], -1)], axis=-2)   # dv/d(a, b)
     return np.einsum("nki,nkl,nlj->nij", J, Iv, J)
-
-
-def _local_median(values, mask, size: int = 5):
-    """Median of ``values`` over the mask pixels of each ``size`` × ``size`` window."""
-    import warnings
-
-    v = np.where(mask, values, np.nan)
-    pad = size // 2
-    H, W = v.shape
-    vp = np.pad(v, pad, constant_values=np.nan)
-    win = np.lib.stride_tricks.sliding_window_view(vp, (size, size))[:H, :W].reshape(H, W, -1)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)   # all-NaN windows outside the mask
-        med = np.nanmedian(win, axis=-1)
-    return np.where(np.isfinite(med), med, values)
 
 
 def _choose_basins(fit, cand_pix, cand, mask, sigma, thickness_sigma_nm):
@@ -172,7 +158,7 @@ def reconstruct_coherent(capture: RGBCapture, progress: bool = False, rounds: in
         weights = np.where(mask, w_n * nz ** 4, 0.0)
         height = integrate_normals(normals, mask, weights, smoothness=smoothness)
         n_surf = height_to_normals(height, mask)
-        d_med = _local_median(thick, mask, median_window)
+        d_med = masked_median(thick, mask, median_window)
         # where confident data disagree with the surface by more than 3 of their standard
         # deviations, the surface is wrong there (a tube's curvature the smoothness flattens):
         # its prior loosens in proportion

@@ -19,6 +19,7 @@ from thinfilm.bsdf import optics
 
 __all__ = [
     "airy_coefficients",
+    "airy_coefficients_exact",
     "rs_spectra",
     "grid_sse",
     "peak_reflectance",
@@ -282,18 +283,25 @@ def airy_coefficients(u, film_ior, substrate_ior, derivatives=False, reference_n
     if np.ndim(film_ior) == 0 and u.size > _AIRY_TABLE_MIN:
         return _airy_table(float(film_ior), float(substrate_ior), float(reference_nm))(u, derivatives)
     n2 = np.broadcast_to(np.asarray(film_ior, dtype=np.float64), u.shape)
+    return airy_coefficients_exact(u, n2, substrate_ior, derivatives, reference_nm, np)
+
+
+def airy_coefficients_exact(u, film_ior, substrate_ior, derivatives=False, reference_nm=500.0, ops=np):
+    """:func:`airy_coefficients` evaluated through the optics core, on any backend: ``ops`` is
+    ``numpy`` for NumPy arrays, or ``drjit`` for Dr.Jit arrays (traced into the caller's
+    kernel; ``u`` in [0, 1])."""
 
     def at(uu):
-        c = np.sqrt(1.0 - uu)
-        q2 = np.sqrt(n2 * n2 - uu)
-        R0s, R0p = optics.reflectances(c, reference_nm, 0.0, n2, substrate_ior)
-        Qs, Qp = optics.reflectances(c, reference_nm, reference_nm / (8.0 * q2), n2, substrate_ior)
+        c = ops.sqrt(1.0 - uu)
+        q2 = ops.sqrt(film_ior * film_ior - uu)
+        R0s, R0p = optics.reflectances(c, reference_nm, 0.0, film_ior, substrate_ior)
+        Qs, Qp = optics.reflectances(c, reference_nm, reference_nm / (8.0 * q2), film_ior, substrate_ior)
         return {"a_s": Qs, "e_s": (R0s - Qs) / (1.0 - R0s), "a_p": Qp, "e_p": (R0p - Qp) / (1.0 - R0p), "q2": q2}
 
     out = at(u)
     if derivatives:
         h = 1e-6
-        hi, lo = np.minimum(u + h, 1.0 - 1e-12), np.maximum(u - h, 0.0)
+        hi, lo = ops.minimum(u + h, 1.0 - 1e-12), ops.maximum(u - h, 0.0)
         up, dn = at(hi), at(lo)
         for k in list(out):
             out[k + "_u"] = (up[k] - dn[k]) / (hi - lo)

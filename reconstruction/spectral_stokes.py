@@ -37,7 +37,6 @@ __all__ = ["U_MAX", "stokes_model", "stokes_normal_equations", "fit_stokes_pixel
 #: largest ``u = sin² θ`` a fit may reach (θ = 89.5°)
 U_MAX = float(np.sin(np.radians(89.5)) ** 2)
 _U_EPS = 1e-9
-_CHUNK_LANES = 1 << 18  # pixels × bands of one Dr.Jit evaluation of the normal equations
 
 
 def angles_to_x(theta_rad, phi_rad, thickness_nm):
@@ -129,11 +128,7 @@ class StokesData:
         idx = np.asarray(idx)
         n2 = np.broadcast_to(np.asarray(film_ior, dtype=np.float64), (idx.size,))
         if use_drjit(idx.size * self.b, minimum=1 << 14):
-            # in chunks: the band terms of a chunk stay in (reused) memory of a few tens of MB
-            rows = max(1, _CHUNK_LANES // self.b)
-            parts = [_dr_airy_neq(self, x[s:s + rows], idx[s:s + rows], n2[s:s + rows], float(substrate_ior))
-                     for s in range(0, idx.size, rows)]
-            sums = [np.concatenate(c) for c in zip(*parts)]
+            sums = _dr_airy_neq(self, x, idx, n2, float(substrate_ior))
         else:
             sums = _np_airy_neq([a[idx] for a in self.S], x, n2, float(substrate_ior), self.wl, self.w0[idx],
                                 self.w1[idx])
@@ -222,28 +217,46 @@ def _np_airy_neq(O, x, n2, n3, wl, w0, w1):
 
 
 def _dr_airy_neq(data, x, idx, n2, n3):
-    """The normal equations on Dr.Jit, one lane per pixel and band (the band terms are
-    evaluated, then summed per pixel)."""
+    """The normal equations on Dr.Jit: one kernel with one lane per pixel, which evaluates the
+    pixel's Airy coefficients through the optics core, then loops over the bands summing the
+    10 terms (nothing per band is stored)."""
     import drjit as dr
     from drjit.llvm import Float64, UInt32
 
-    n, b = idx.size, data.b
-    lane = dr.arange(UInt32, n * b)
-    pix = lane // b
-    band = lane - pix * b
-    C, E1, E2 = _pixel_terms(x, n2, n3)
-    P = {k: dr.gather(Float64, Float64(np.ascontiguousarray(v, dtype=np.float64)), pix)
-         for k, v in dict(C, d=x[:, 2], v1=x[:, 0], v2=x[:, 1], e1=E1, e2=E2, w0=data.w0[idx],
-                          w1=data.w1[idx]).items()}
-    K = dr.gather(Float64, Float64(4.0 * np.pi / data.wl), band)
+    from .spectral_model import airy_coefficients_exact
+
+    b, m = data.b, idx.size
+    # the per-pixel inputs in one upload, read by gathers: a kernel that loaded NumPy's
+    # buffers directly would depend on their alignment, and Dr.Jit would compile it anew
+    cols = np.stack([x[:, 0], x[:, 1], x[:, 2], n2, data.w0[idx], data.w1[idx],
+                     np.asarray(idx, dtype=np.float64) * b], axis=1)
+    flat = Float64(np.ascontiguousarray(cols, dtype=np.float64).ravel())
+    lane = dr.arange(UInt32, m) * cols.shape[1]
+    v1, v2, d, N2, w0, w1, row = (dr.gather(Float64, flat, lane + k) for k in range(cols.shape[1]))
+    first = UInt32(row)
+    u = dr.sqrt(v1 * v1 + v2 * v2)
+    pos = u > _U_EPS
+    uc = dr.minimum(dr.maximum(u, _U_EPS), 1.0)
+    # the substrate's index as an opaque value: the kernel (cached by Dr.Jit) is the same
+    # for every film
+    C = airy_coefficients_exact(uc, N2, dr.opaque(Float64, n3), derivatives=True, ops=dr)
+    C["u"] = uc
+    us = dr.select(pos, u, 1.0)
+    E1, E2 = dr.select(pos, v1 / us, 0.0), dr.select(pos, v2 / us, 0.0)
+    K = Float64(4.0 * np.pi / data.wl)
     O = data.device()
-    j = dr.gather(UInt32, UInt32(np.asarray(idx, dtype=np.uint32) * np.uint32(b)), pix) + band
-    S0m, Q, S0u, Qu, S0d, Qd = _airy_lanes(P, P["d"], K, dr)
-    r, J = _residual_parts(dr.gather(Float64, O[0], j), dr.gather(Float64, O[1], j), dr.gather(Float64, O[2], j),
-                           S0m, Q, S0u, Qu, S0d, Qd, P["v1"], P["v2"], P["e1"], P["e2"], P["w0"], P["w1"])
-    terms = _products(r, J)
-    dr.eval(*terms)
-    sums = [dr.block_sum(t_, b) for t_ in terms]
+    bands = dr.opaque(UInt32, b)
+
+    def body(band, *acc):
+        j = first + band
+        S0m, Q, S0u, Qu, S0d, Qd = _airy_lanes(C, d, dr.gather(Float64, K, band), dr)
+        r, J = _residual_parts(dr.gather(Float64, O[0], j), dr.gather(Float64, O[1], j), dr.gather(Float64, O[2], j),
+                               S0m, Q, S0u, Qu, S0d, Qd, v1, v2, E1, E2, w0, w1)
+        return (band + 1, *(a + t for a, t in zip(acc, _products(r, J))))
+
+    zero = dr.zeros(Float64, m)
+    state = (dr.zeros(UInt32, m),) + (zero,) * 10
+    sums = dr.while_loop(state, lambda band, *acc: band < bands, body)[1:]
     dr.eval(*sums)
     return [s_.numpy() for s_ in sums]
 
@@ -346,20 +359,6 @@ def _interpolate_seeds(mask, seeds, *values, radius=2.0):
     return out
 
 
-def _local_median(values, mask, size):
-    """Median of ``values`` over the mask pixels of each ``size`` x ``size`` window."""
-    import warnings
-
-    v = np.where(mask, values, np.nan)
-    pad = size // 2
-    H, W = v.shape
-    win = np.lib.stride_tricks.sliding_window_view(np.pad(v, pad, constant_values=np.nan), (size, size))
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        med = np.nanmedian(win.reshape(H, W, -1), axis=-1)
-    return np.where(np.isfinite(med), med, values)
-
-
 def reconstruct_stokes(stokes, wavelengths_nm, substrate_ior, mask, smoothness=2.0, surface_sigma=0.01,
                        misfit=4.0, iterations=8, thickness_sigma_nm=15.0, seed_step=3, max_chi2=10.0):
     """The default spectral method on a Stokes capture (see :mod:`.spectral_default`)."""
@@ -369,6 +368,7 @@ def reconstruct_stokes(stokes, wavelengths_nm, substrate_ior, mask, smoothness=2
 
     from . import spectral_fit as _sf
     from .azimuth import resolve_azimuth_global
+    from .masks import masked_median
     from .surface import height_to_normals, integrate_normals
 
     wl = np.asarray(wavelengths_nm, dtype=np.float64)
@@ -460,7 +460,7 @@ def reconstruct_stokes(stokes, wavelengths_nm, substrate_ior, mask, smoothness=2
     # prior and that agree with their neighbours are left as they are.
     d_img = np.full(mask.shape, np.nan)
     d_img[mask] = x[:, 2]
-    d_med = _local_median(d_img, mask, 7)[mask]
+    d_med = masked_median(d_img, mask, 7)[mask]
     far = np.abs(x[:, 2] - d_med) > 2.0 * thickness_sigma_nm
     info_d = H[:, 2, 2] - np.einsum("ni,nij,nj->n", H[:, 2, :2], np.linalg.pinv(H[:, :2, :2]), H[:, :2, 2])
     weak = info_d < 25.0 * (noise / thickness_sigma_nm) ** 2

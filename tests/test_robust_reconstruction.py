@@ -192,11 +192,17 @@ def test_airy_form_matches_tmm(n2, n3):
         np.testing.assert_allclose(Rp, ref_p, atol=1e-12)
 
 
-def test_stokes_fit_recovers_zenith_azimuth_axis_and_thickness_from_tmm_spectra():
+@pytest.mark.parametrize("copies", [1, 64])
+def test_stokes_fit_recovers_zenith_azimuth_axis_and_thickness_from_tmm_spectra(copies):
     """The s and p spectra fix the zenith at every pixel, also near normal incidence where
-    the s spectrum's peak barely changes with the angle (paper Sec. 6.1's weak spot)."""
+    the s spectrum's peak barely changes with the angle (paper Sec. 6.1's weak spot). With
+    64 copies of each pixel the normal equations run on Dr.Jit (one kernel over the bands),
+    with one on NumPy."""
     from thinfilm.reconstruction import spectral_model as sm
     from thinfilm.reconstruction.spectral_stokes import angles_to_x, fit_stokes_pixels, x_to_angles
+
+    if copies > 1:
+        assert sm.use_drjit(4 * copies * WL.size, minimum=1 << 14), "the Dr.Jit path is not exercised"
 
     n2, n3 = 1.38, 1.6
     cases = [(3.0, 40.0, 420.0), (8.0, 130.0, 520.0), (30.0, 75.0, 610.0), (62.0, 170.0, 380.0)]
@@ -207,14 +213,14 @@ def test_stokes_fit_recovers_zenith_azimuth_axis_and_thickness_from_tmm_spectra(
         S0.append(0.5 * (Rs + Rp))
         S1.append(-P * math.cos(math.radians(2 * phi)))
         S2.append(-P * math.sin(math.radians(2 * phi)))
-    S0, S1, S2 = (np.array(a) for a in (S0, S1, S2))
+    S0, S1, S2 = (np.tile(np.array(a), (copies, 1)) for a in (S0, S1, S2))
     th0 = np.radians([c[0] for c in cases]) + np.radians([2.0, -2.0, 1.5, -1.0])
     x0 = angles_to_x(th0, np.radians([c[1] + 10.0 for c in cases]), [c[2] + 6.0 for c in cases])
-    fit = fit_stokes_pixels(S0, S1, S2, x0, n2, n3, WL, iterations=30)
+    fit = fit_stokes_pixels(S0, S1, S2, np.tile(x0, (copies, 1)), n2, n3, WL, iterations=30)
     th, phi, d = x_to_angles(fit.x)
-    np.testing.assert_allclose(np.degrees(th), [c[0] for c in cases], atol=0.01)
-    np.testing.assert_allclose(np.mod(np.degrees(phi), 180.0), [c[1] for c in cases], atol=0.05)
-    np.testing.assert_allclose(d, [c[2] for c in cases], atol=0.01)
+    np.testing.assert_allclose(np.degrees(th), [c[0] for c in cases] * copies, atol=0.01)
+    np.testing.assert_allclose(np.mod(np.degrees(phi), 180.0), [c[1] for c in cases] * copies, atol=0.05)
+    np.testing.assert_allclose(d, [c[2] for c in cases] * copies, atol=0.01)
     # the s peak alone: 3° and 8° differ by 2 % in peak reflectance (a few noise levels)
     r3, r8 = sm.peak_reflectance(np.radians([3.0, 8.0]), n3)
     assert abs(r8 - r3) / r3 < 0.025
@@ -484,3 +490,23 @@ def test_a_sheet_and_its_mirror_image_give_the_same_captures(render_variant):
     for k in ("S0", "S1", "S2"):
         np.testing.assert_allclose(a["stokes_exact"][k][m], b["stokes_exact"][k][m], atol=1e-7)
     assert np.median(_angle_deg(a["ground_truth"]["normal"][m], b["ground_truth"]["normal"][m])) > 20.0
+
+
+@pytest.mark.parametrize("shape, size", [((40, 33), 7), ((9, 8), 3), ((12, 15), 5)])
+def test_masked_median_equals_numpy_nanmedian(shape, size):
+    """The masked median filter equals NumPy's ``nanmedian`` over each window with the pixels
+    outside the mask set to NaN, at every mask pixel; other pixels keep their value."""
+    from thinfilm.reconstruction.masks import masked_median
+
+    rng = np.random.default_rng(size)
+    v = rng.normal(size=shape)
+    m = rng.random(shape) < 0.6
+    pad = size // 2
+    padded = np.pad(np.where(m, v, np.nan), pad, constant_values=np.nan)
+    win = np.lib.stride_tricks.sliding_window_view(padded, (size, size)).reshape(*shape, -1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        ref = np.nanmedian(win, axis=-1)
+    out = masked_median(v, m, size)
+    np.testing.assert_array_equal(out[m], ref[m])
+    np.testing.assert_array_equal(out[~m], v[~m])
