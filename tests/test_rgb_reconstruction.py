@@ -429,3 +429,27 @@ def test_user_mask_and_indices_from_the_command_line(small_dataset, tmp_path, ca
     est = read_estimate(out)
     assert est.info["method"] == "kobayashi2023" and est.film_ior == 1.37
     assert np.array_equal(est.valid, m > 0)
+
+
+@pytest.mark.parametrize("film_ior, substrate_ior, weak", [(1.37, 1.6, False), (1.47, 1.485, True)])
+def test_coherent_method_says_when_the_fringes_leave_the_order_open(tmp_path, film_ior, substrate_ior, weak):
+    """A film whose index is within 0.015 of its substrate's has fringes so weak that several
+    orders of interference fit the colours within the noise: the estimate says at which
+    fraction of the pixels (``thickness_order_open``), and warns once most are open."""
+    import warnings
+
+    from thinfilm.core.errors import ThinfilmWarning
+    from thinfilm.reconstruct import reconstruct
+
+    path = tmp_path / "ds"
+    write_synthetic_dataset(path, "hemisphere", 32, film_ior=film_ior, substrate_ior=substrate_ior,
+                            thickness=(560.0, 540.0), noise=True, seed=3)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        res, _ = reconstruct("rgb", path, "coherent")
+    said = [w for w in caught if issubclass(w.category, ThinfilmWarning) and "weak fringes" in str(w.message)]
+    open_ = res.info["thickness_order_open"]
+    if weak:
+        assert open_ > 0.85 and len(said) == 1
+    else:
+        assert open_ < 0.25 and not said          # most pixels decided by their own colours
