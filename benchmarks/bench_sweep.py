@@ -9,7 +9,9 @@ each shape per worker (untimed: kernel compilation, imports); the timed datasets
 
 Usage::
 
-    python benchmarks/bench_sweep.py [--count 12] [--repeat 2] [--resolution 128]
+    python benchmarks/bench_sweep.py [--count 12] [--repeat 2] [--resolution 128] [--threads 1]
+
+With ``--threads 1`` every worker, the single one too, gets one thread: the scaling per core.
 
 Goal (issue 8): >= 60 scenes a minute with 2 workers on 2 cores, and >= 1.8x from 1 to 2
 workers. The machine must be otherwise idle for the ratio to mean anything.
@@ -57,6 +59,9 @@ def main(argv=None) -> int:
     p.add_argument("--repeat", type=int, default=2, help="measurements per worker count (alternated)")
     p.add_argument("--resolution", type=int, default=128)
     p.add_argument("--workers", default="1,2", help="worker counts to compare (the first is the baseline)")
+    p.add_argument("--threads", type=int, default=None,
+                   help="Dr.Jit and OpenEXR threads per worker (default: cores // workers); 1 measures "
+                        "the scaling per core")
     args = p.parse_args(argv)
 
     from thinfilm.cluster import Task, default_workers, executor, run_tasks
@@ -78,7 +83,7 @@ def main(argv=None) -> int:
         nxt = warm_n
         for rep in range(args.repeat):
             for w in counts:
-                with executor(workers=w) as ex:
+                with executor(workers=w, worker_threads=args.threads) as ex:
                     warm = [Task(f"warm{i}", timed_generate, (spec, str(tmp / f"w{w}-{rep}-warm{i}")))
                             for i, (_, spec, _) in enumerate(plan[:3 * w])]
                     run_tasks(warm, ex)

@@ -44,6 +44,7 @@ __all__ = [
     "Estimate",
     "read_exr",
     "write_exr",
+    "set_exr_threads",
     "read_dataset",
     "write_dataset",
     "dataset_meta",
@@ -90,21 +91,28 @@ def band_channels(cube, prefix: str = "") -> dict:
     return {f"{prefix}{band_channel(b)}": cube[..., b] for b in range(cube.shape[-1])}
 
 
-def _openexr():
-    """The OpenEXR module, its thread pool sized once to the cores this process may use (ZIP
-    blocks are then compressed and decompressed in parallel; the bytes written are the same
-    for any number of threads)."""
+def set_exr_threads(threads: int) -> None:
+    """Size OpenEXR's thread pool, which compresses and decompresses the ZIP blocks of EXR
+    files in parallel (the bytes written are the same for any number of threads); 1 or less:
+    no pool. A Dask worker given a share of the cores calls this with its share."""
     import OpenEXR
 
     global _EXR_THREADS_SET
+    _EXR_THREADS_SET = True
+    OpenEXR.set_global_thread_count(int(threads) if threads > 1 else 0)
+
+
+def _openexr():
+    """The OpenEXR module; unless :func:`set_exr_threads` was called, its thread pool sized
+    once to the cores this process may use (at most 8)."""
+    import OpenEXR
+
     if not _EXR_THREADS_SET:
-        _EXR_THREADS_SET = True
         try:
             cores = len(os.sched_getaffinity(0))
         except (AttributeError, OSError):
             cores = os.cpu_count() or 1
-        if OpenEXR.global_thread_count() < min(cores, 8):
-            OpenEXR.set_global_thread_count(min(cores, 8))
+        set_exr_threads(min(cores, 8))
     return OpenEXR
 
 

@@ -59,12 +59,16 @@ def default_workers() -> int:
 
 
 def _in_worker(function, drjit_threads, *args):
-    """Run ``function(*args)`` on a worker, with Dr.Jit's thread pool sized first."""
+    """Run ``function(*args)`` on a worker, with Dr.Jit's and OpenEXR's thread pools sized
+    first."""
     if drjit_threads:
         import drjit as dr
 
+        from thinfilm.core.io import set_exr_threads
+
         if dr.thread_count() != drjit_threads:
             dr.set_thread_count(drjit_threads)
+        set_exr_threads(drjit_threads)
     return function(*args)
 
 
@@ -86,11 +90,14 @@ class Executor:
 
 
 @contextlib.contextmanager
-def executor(workers: int | None = None, scheduler: str | None = None, max_workers: int | None = None):
+def executor(workers: int | None = None, scheduler: str | None = None, max_workers: int | None = None,
+             worker_threads: int | None = None):
     """Yield an :class:`Executor` (see the module docstring); the local cluster, or the
     connection, is closed on exit.
 
-    ``max_workers`` caps a local cluster (no point starting more workers than tasks)."""
+    ``max_workers`` caps a local cluster (no point starting more workers than tasks);
+    ``worker_threads`` sets the Dr.Jit and OpenEXR threads of each of its workers (default
+    ``max(1, cores // workers)``)."""
     if scheduler is not None:
         from distributed import Client
 
@@ -125,7 +132,7 @@ def executor(workers: int | None = None, scheduler: str | None = None, max_worke
 
     from distributed import Client, LocalCluster
 
-    threads = max(1, default_workers() // n)
+    threads = max(1, default_workers() // n) if worker_threads is None else max(1, int(worker_threads))
     cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
                            host="127.0.0.1", silence_logs=logging.ERROR)
     try:
