@@ -55,6 +55,11 @@ def object_mask_stokes(stokes):
     return mask_from_intensity(s)
 
 
+#: how many times better the minima's reading must fit for :func:`check_peak_assumption` to
+#: refuse
+DECISIVE = 4.0
+
+
 def check_peak_assumption(spectra, wavelengths_nm, substrate_ior):
     """Raise :class:`UserError` when the spectra say ``n2 > n3`` (the paper's peaks are minima).
 
@@ -63,7 +68,10 @@ def check_peak_assumption(spectra, wavelengths_nm, substrate_ior):
     maxima of the s spectrum (the constructive-interference peaks the paper reads), with
     ``n2 > n3`` the minima. Both readings are fitted to the object's spectra with one film
     index (:func:`.spectral_fit.estimate_film_ior_either_side`, on pixels at well-conditioned
-    angles, whatever angles the object shows) and the better one tells the side.
+    angles, whatever angles the object shows). Only a decisive verdict refuses: the minima's
+    reading must explain the spectra :data:`DECISIVE` times better than the maxima's (a film
+    above its substrate: 17-200 times better; a rough film, whose fringes the microfacets
+    smear, can tilt the balance by a factor of 1.2-1.8 either way).
 
     Parameters
     ----------
@@ -80,7 +88,9 @@ def check_peak_assumption(spectra, wavelengths_nm, substrate_ior):
         n2, info = estimate_film_ior_either_side(S, wavelengths_nm, substrate_ior, max_pixels=80)
     except UserError:
         return  # no extremum at all: the method itself reports what it cannot do
-    if info["film_ior_above_substrate"]:
+    below, above = info["film_ior_fit_below"], info["film_ior_fit_above"]
+    decisive = below is None or (above is not None and above * DECISIVE < below)
+    if info["film_ior_above_substrate"] and decisive:
         raise UserError(
             f"spectral_s: the spectra say the film index (about {n2:.2f}) is above the substrate's ({substrate_ior:g}): "
             f"their extrema at the bare substrate's reflectance are minima, so the constructive-interference peaks "
