@@ -51,8 +51,8 @@ def _normal_information(info, n_xy):
 
 
 #: fraction of pixels whose order of interference the data leave open above which the
-#: thickness is reported as unreliable (a warning); measured on random scenes, the estimates
-#: with whole-order errors had 0.91-0.95, all others at most 0.82
+#: thickness is reported as unreliable (a warning); on 128 random scenes the 7 estimates with
+#: whole-order errors had 0.87-0.95, 119 of the other 121 at most 0.83
 OPEN_ORDERS_WARN = 0.85
 
 
