@@ -2,9 +2,10 @@
 
 Same scene (spheres under a uniform dome, stokes + path integrator, orthographic camera),
 spectral polarized variant, 512x512 at 16 spp by default; both BSDFs are warmed up (kernels
-compiled) before timing; the median of several renders is reported.
+compiled) before timing; rounds of renders of each alternate, and the median of each one's
+renders is reported.
 
-    python benchmarks/bench_plugin.py [--variant llvm_ad_spectral_polarized] [--res 512] [--spp 16] [--repeats 5]
+    python benchmarks/bench_plugin.py [--variant llvm_ad_spectral_polarized] [--res 512] [--spp 16] [--repeats 5] [--rounds 3]
 """
 
 import argparse
@@ -48,6 +49,7 @@ def main():
     ap.add_argument("--res", type=int, default=512)
     ap.add_argument("--spp", type=int, default=16)
     ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--rounds", type=int, default=3, help="alternated rounds of --repeats renders each")
     args = ap.parse_args()
 
     import drjit as dr
@@ -60,12 +62,15 @@ def main():
     conductor = mi.load_dict(scene_dict(mi, {"type": "conductor", "eta": 1.6, "k": 0.0}, args.res, args.spp))
     film = mi.load_dict(scene_dict(mi, {"type": "thinfilm", "thickness": 400.0, "film_ior": 1.37,
                                         "substrate_ior": 1.6}, args.res, args.spp))
-    # Interleave to share any drift in machine load between the two.
-    t_cond, runs_cond = time_render(mi, dr, conductor, args.repeats)
-    t_film, runs_film = time_render(mi, dr, film, args.repeats)
-    t_cond2, _ = time_render(mi, dr, conductor, args.repeats)
-    t_cond = min(t_cond, t_cond2)
-    print(f"variant {args.variant}, {args.res}x{args.res}, {args.spp} spp, median of {args.repeats}")
+    # Alternate (conductor, thinfilm) rounds to share any drift in machine load between the
+    # two; each side's time is the median of all its renders
+    runs_cond, runs_film = [], []
+    for _ in range(args.rounds):
+        runs_cond += time_render(mi, dr, conductor, args.repeats)[1]
+        runs_film += time_render(mi, dr, film, args.repeats)[1]
+    t_cond, t_film = statistics.median(runs_cond), statistics.median(runs_film)
+    print(f"variant {args.variant}, {args.res}x{args.res}, {args.spp} spp, median of {args.rounds} x {args.repeats} "
+          f"alternated renders each")
     print(f"  native conductor : {t_cond * 1e3:8.1f} ms")
     print(f"  thinfilm         : {t_film * 1e3:8.1f} ms")
     print(f"  ratio thinfilm / conductor = {t_film / t_cond:.3f}   (target <= 1.1)")
