@@ -19,32 +19,8 @@ the two spectral renders against each other.
 
 import argparse
 import statistics
-import time
 
-
-def scene_dict(mi, bsdf, res, spp):
-    return {
-        "type": "scene",
-        "integrator": {"type": "path", "max_depth": 4, "hide_emitters": True},
-        "sensor": {
-            "type": "orthographic",
-            "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 5], target=[0, 0, 0], up=[0, 1, 0])
-            @ mi.ScalarTransform4f().scale([1.6, 1.6, 1]),
-            "film": {"type": "hdrfilm", "width": res, "height": res},
-            "sampler": {"type": "independent", "sample_count": spp},
-        },
-        "emitter": {"type": "constant"},
-        "a": {"type": "sphere", "radius": 0.9, "center": [-0.5, 0, 0], "bsdf": bsdf},
-        "b": {"type": "sphere", "radius": 0.6, "center": [0.8, 0.6, 0.3], "bsdf": bsdf},
-    }
-
-
-def render_time(mi, dr, scene, seed):
-    t0 = time.perf_counter()
-    img = mi.render(scene, seed=seed)
-    dr.eval(img)
-    dr.sync_thread()
-    return time.perf_counter() - t0
+from _bsdf_bench import compare, scene_dict
 
 
 ACCURACY_CASES = {
@@ -128,16 +104,14 @@ def main():
 
     thinfilm.bsdf.register()
     scenes = {
-        "conductor": mi.load_dict(scene_dict(mi, {"type": "conductor", "eta": 1.6, "k": 0.0}, args.res, args.spp)),
+        "conductor": mi.load_dict(scene_dict(mi, {"type": "conductor", "eta": 1.6, "k": 0.0}, args.res, args.spp,
+                                              stokes=False)),
         "thinfilm": mi.load_dict(scene_dict(mi, {"type": "thinfilm", "thickness": 400.0, "film_ior": 1.37,
-                                                 "substrate_ior": 1.6}, args.res, args.spp)),
+                                                 "substrate_ior": 1.6}, args.res, args.spp, stokes=False)),
     }
-    compile_s = {name: render_time(mi, dr, scene, 0) for name, scene in scenes.items()}  # trace + compile
-    times = {name: [] for name in scenes}
-    for i in range(args.repeats):
-        order = list(scenes) if i % 2 == 0 else list(scenes)[::-1]
-        for name in order:
-            times[name].append(render_time(mi, dr, scenes[name], i + 1))
+    times, first = compare(mi, dr, scenes, args.repeats)
+    times = {name: [t[0] for t in ts] for name, ts in times.items()}
+    compile_s = {name: t[0] for name, t in first.items()}
     med = {name: statistics.median(t) for name, t in times.items()}
     print(f"variant {args.variant}, {args.res}x{args.res}, {args.spp} spp, median of {args.repeats} alternate runs")
     for name in scenes:

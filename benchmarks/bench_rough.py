@@ -12,44 +12,8 @@ rendered alternately; the medians are reported. ``--smooth`` also times the smoo
 
 import argparse
 import statistics
-import time
 
-
-def scene_dict(mi, bsdf, res, spp):
-    return {
-        "type": "scene",
-        "integrator": {"type": "stokes", "nested": {"type": "path", "max_depth": 4, "hide_emitters": True}},
-        "sensor": {
-            "type": "orthographic",
-            "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 5], target=[0, 0, 0], up=[0, 1, 0])
-            @ mi.ScalarTransform4f().scale([1.6, 1.6, 1]),
-            "film": {"type": "hdrfilm", "width": res, "height": res},
-            "sampler": {"type": "independent", "sample_count": spp},
-        },
-        "emitter": {"type": "constant"},
-        "a": {"type": "sphere", "radius": 0.9, "center": [-0.5, 0, 0], "bsdf": bsdf},
-        "b": {"type": "sphere", "radius": 0.6, "center": [0.8, 0.6, 0.3], "bsdf": bsdf},
-    }
-
-
-def render_time(mi, dr, scene, seed):
-    """Wall-clock and CPU (all threads of this process) seconds of one render."""
-    t0, c0 = time.perf_counter(), time.process_time()
-    img = mi.render(scene, seed=seed)
-    dr.eval(img)
-    dr.sync_thread()
-    return time.perf_counter() - t0, time.process_time() - c0
-
-
-def compare(mi, dr, scenes, repeats):
-    """(wall, CPU) times of each scene's renders (warmed up, rendered in alternation), by name."""
-    for scene in scenes.values():
-        render_time(mi, dr, scene, 0)  # trace and compile
-    times = {name: [] for name in scenes}
-    for i in range(repeats):
-        for name, scene in scenes.items():
-            times[name].append(render_time(mi, dr, scene, i + 1))
-    return times
+from _bsdf_bench import compare, scene_dict
 
 
 def ratios(times, name, baseline, which):
@@ -89,7 +53,7 @@ def main():
         scenes["conductor"] = {"type": "conductor", "eta": 1.6, "k": 0.0}
         scenes["smooth thinfilm"] = film
     scenes = {name: mi.load_dict(scene_dict(mi, bsdf, args.res, args.spp)) for name, bsdf in scenes.items()}
-    times = compare(mi, dr, scenes, args.repeats)
+    times, _ = compare(mi, dr, scenes, args.repeats)
 
     print(f"variant {args.variant}, {args.res}x{args.res}, {args.spp} spp, median of {args.repeats} "
           f"(alternated), {args.distribution} alpha {args.alpha}")

@@ -55,6 +55,7 @@ __all__ = [
     "read_metrics",
     "height_to_mesh",
     "read_json",
+    "parse_json_text",
     "read_text_file",
     "read_toml",
     "read_mask_file",
@@ -477,6 +478,17 @@ def read_toml(path, what: str = "TOML file") -> dict:
         raise UserError(f"{path}: not valid TOML ({e})") from None
 
 
+def parse_json_text(text: str, path) -> object:
+    """Parse the JSON text of file ``path``; malformed JSON is a one-line :class:`UserError`
+    naming the file and line."""
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as e:
+        raise UserError(f"{path}: not valid JSON ({e.msg} at line {e.lineno})") from None
+    except RecursionError:
+        raise UserError(f"{path}: not valid JSON (nested too deeply)") from None
+
+
 def read_json(path, missing=None, finite=False):
     """Parse a JSON file; a missing or malformed file is a one-line :class:`UserError`
     (``missing`` adds a hint to the not-found message). With ``finite``, a ``NaN`` or
@@ -484,13 +496,7 @@ def read_json(path, missing=None, finite=False):
     path = Path(path)
     if not path.is_file():
         raise UserError(f"{path}: file not found" + (f" ({missing})" if missing else ""))
-    text = read_text_file(path, "JSON file")
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as e:
-        raise UserError(f"{path}: not valid JSON ({e.msg} at line {e.lineno})") from None
-    except RecursionError:
-        raise UserError(f"{path}: not valid JSON (nested too deeply)") from None
+    data = parse_json_text(read_text_file(path, "JSON file"), path)
     if finite:
         bad = _non_finite(data)
         if bad is not None:

@@ -36,11 +36,11 @@ def _tmm_rs_rp(theta_deg, d_nm, n2, n3, wavelengths=WL):
 
 
 def _rotation(deg):
-    ax, ay, az = np.radians(deg)
-    rx = np.array([[1, 0, 0], [0, np.cos(ax), -np.sin(ax)], [0, np.sin(ax), np.cos(ax)]])
-    ry = np.array([[np.cos(ay), 0, np.sin(ay)], [0, 1, 0], [-np.sin(ay), 0, np.cos(ay)]])
-    rz = np.array([[np.cos(az), -np.sin(az), 0], [np.sin(az), np.cos(az), 0], [0, 0, 1]])
-    return rz @ ry @ rx
+    """The spec's ``rotate_deg``: x, then y, then z about the fixed axes (SciPy's extrinsic
+    Euler angles, an independent reference for the generator's matrices)."""
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_euler("xyz", deg, degrees=True).as_matrix()
 
 
 # --- generator shapes: ray-cast ground truth against analytic geometry ---------------------------

@@ -12,7 +12,6 @@ only with ``--overwrite``, and a file the scene reads never.
 
 from __future__ import annotations
 
-import json
 import math
 import re
 import time
@@ -84,7 +83,7 @@ def _one_line(error) -> str:
 
 def _read_scene_data(path: Path) -> dict:
     """The dictionary of a .toml or .json scene, checked to be a ``type = "scene"`` table."""
-    from thinfilm.core.io import read_text_file
+    from thinfilm.core.io import parse_json_text, read_text_file
 
     text = read_text_file(path, "scene")
     if path.suffix.lower() == ".toml":
@@ -95,12 +94,7 @@ def _read_scene_data(path: Path) -> dict:
         except tomllib.TOMLDecodeError as e:
             raise UserError(f"{path}: not valid TOML ({e})") from None
     else:
-        try:
-            data = json.loads(text)
-        except json.JSONDecodeError as e:
-            raise UserError(f"{path}: not valid JSON ({e.msg} at line {e.lineno})") from None
-        except RecursionError:
-            raise UserError(f"{path}: not valid JSON (nested too deeply)") from None
+        data = parse_json_text(text, path)
     if not isinstance(data, dict):
         raise UserError(f"{path}: expected a table (a Mitsuba load_dict dictionary), got {type(data).__name__}")
     if data.get("type") != "scene":
