@@ -95,7 +95,7 @@ def band_channels(cube, prefix: str = "") -> dict:
 def set_exr_threads(threads: int) -> None:
     """Size OpenEXR's thread pool, which compresses and decompresses the ZIP blocks of EXR
     files in parallel (the bytes written are the same for any number of threads); 1 or less:
-    no pool. A Dask worker given a share of the cores calls this with its share."""
+    no pool (:func:`thinfilm.core.threads.set_thread_budget` calls this)."""
     import OpenEXR
 
     global _EXR_THREADS_SET
@@ -105,15 +105,13 @@ def set_exr_threads(threads: int) -> None:
 
 def _openexr():
     """The OpenEXR module; unless :func:`set_exr_threads` was called, its thread pool sized
-    once to the cores this process may use (at most 8)."""
+    once to the process's thread budget (:mod:`.threads`; at most 8)."""
     import OpenEXR
 
     if not _EXR_THREADS_SET:
-        try:
-            cores = len(os.sched_getaffinity(0))
-        except (AttributeError, OSError):
-            cores = os.cpu_count() or 1
-        set_exr_threads(min(cores, 8))
+        from .threads import thread_budget
+
+        set_exr_threads(min(thread_budget(), 8))
     return OpenEXR
 
 

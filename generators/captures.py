@@ -48,10 +48,14 @@ def hyperspectral_capture(stokes: dict, polarizer_angles_deg, mask, noise: dict,
     angle (``rngs``: one generator per angle), fitted to the measured Stokes cube.
 
     The least-squares Stokes fit (:func:`thinfilm.core.conventions.fit_stokes`) is
-    accumulated one angle at a time so that only one noisy stack is held at once; two
-    threads draw the noise (NumPy's generators release the GIL).
+    accumulated one angle at a time so that only one noisy stack is held at once; up to two
+    threads draw the noise (NumPy's generators release the GIL), within the process's thread
+    budget (:mod:`thinfilm.core.threads`). Each angle has its own generator, so the result
+    is the same with one thread or two.
     """
     from concurrent.futures import ThreadPoolExecutor
+
+    from thinfilm.core.threads import thread_budget
 
     angles = [int(a) for a in polarizer_angles_deg]
 
@@ -62,8 +66,14 @@ def hyperspectral_capture(stokes: dict, polarizer_angles_deg, mask, noise: dict,
 
     fit = np.linalg.pinv(stokes_design_matrix(angles))  # (3, A)
     acc = np.zeros((3,) + stokes["S0"].shape)
-    with ThreadPoolExecutor(max_workers=2) as pool:
-        for i, noisy in enumerate(pool.map(shoot, range(len(angles)))):
+    def accumulate(frames):
+        for i, noisy in enumerate(frames):
             for s in range(3):
                 acc[s] += fit[s, i] * noisy
+
+    if thread_budget() < 2:
+        accumulate(map(shoot, range(len(angles))))
+    else:
+        with ThreadPoolExecutor(max_workers=2) as pool:
+            accumulate(pool.map(shoot, range(len(angles))))
     return {"S0": acc[0], "S1": acc[1], "S2": acc[2]}

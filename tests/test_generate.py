@@ -235,6 +235,24 @@ def test_same_seed_same_bytes_other_seed_other_noise(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a", "b", "c", "d"]  # no temp folders left
 
 
+def test_same_bytes_with_one_thread_or_all_cores(tmp_path):
+    """A Dask worker's thread budget (one thread per worker on a full machine) sizes Dr.Jit's
+    and OpenEXR's pools and the noise threads; the dataset is the same bytes either way."""
+    from thinfilm.core.threads import set_thread_budget, thread_budget
+    from thinfilm.generators.generate import generate_dataset
+
+    spec = small_spec("cylinder", 24, noise="camera", seed=7)
+    try:
+        set_thread_budget(1)
+        assert thread_budget() == 1
+        generate_dataset(spec, tmp_path / "one", progress=False)
+    finally:
+        set_thread_budget(None)
+    generate_dataset(spec, tmp_path / "all", progress=False)
+    for name in FILES:
+        assert (tmp_path / "one" / name).read_bytes() == (tmp_path / "all" / name).read_bytes(), name
+
+
 def test_camera_noise_is_unbiased_and_scaled_by_exposure(tmp_path):
     from thinfilm.core.io import read_dataset
     from thinfilm.generators.generate import generate_dataset

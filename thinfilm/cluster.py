@@ -7,12 +7,13 @@
 * ``workers=0``: every task in this process, one after another, in the order given (no Dask);
 * ``workers=N`` (default: the number of cores): a local Dask cluster
   (``distributed.LocalCluster``) of N worker processes with one task thread each, so each
-  process holds one Mitsuba; Dr.Jit's thread pool in each worker is set to
-  ``max(1, cores // N)`` so that the workers together use no more threads than cores;
+  process holds one Mitsuba; each worker's thread budget (Dr.Jit's and OpenEXR's pools, the
+  noise threads: :mod:`thinfilm.core.threads`) is set to ``max(1, cores // N)`` so that the
+  workers together use no more threads than cores;
 * ``scheduler=ADDRESS`` (``tcp://host:port``, or the JSON file of
   ``dask scheduler --scheduler-file``): an existing cluster (``dask scheduler`` and
   ``dask worker``); its workers need ``thinfilm`` importable and the output folder on a
-  shared file system. Their Dr.Jit threads are left as the workers have them.
+  shared file system. Their threads are left as the workers have them.
 
 Each task function sets the Mitsuba variant it needs itself (workers start with none), and
 writes its own output folder; what it returns (a small dict) comes back to the caller. The
@@ -22,7 +23,6 @@ result of a task never depends on where it ran: a task is a pure function of its
 from __future__ import annotations
 
 import contextlib
-import os
 import sys
 import uuid
 from dataclasses import dataclass, field
@@ -51,24 +51,19 @@ class Task:
 
 
 def default_workers() -> int:
-    """The number of cores this process may use."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # pragma: no cover - not Linux
-        return max(1, os.cpu_count() or 1)
+    """The number of cores this process may use (one worker per core)."""
+    from thinfilm.core.threads import cores
+
+    return cores()
 
 
 def _in_worker(function, drjit_threads, *args):
-    """Run ``function(*args)`` on a worker, with Dr.Jit's and OpenEXR's thread pools sized
-    first."""
+    """Run ``function(*args)`` on a worker, with its thread budget (Dr.Jit's and OpenEXR's
+    pools, the noise threads) set to its share of the cores first."""
     if drjit_threads:
-        import drjit as dr
+        from thinfilm.core.threads import set_thread_budget
 
-        from thinfilm.core.io import set_exr_threads
-
-        if dr.thread_count() != drjit_threads:
-            dr.set_thread_count(drjit_threads)
-        set_exr_threads(drjit_threads)
+        set_thread_budget(drjit_threads)
     return function(*args)
 
 
