@@ -129,7 +129,7 @@ def _outward(mask, smooth_px=1.5):
 
 
 def contour_anchors(o, theta, confidence, mask, steep_deg=70.0, hole_deg=45.0, band_px=2.0, cut_deg=45.0,
-                    cut_weight=0.1, centre_weight=3.0, centre_fraction=0.5):
+                    cut_weight=0.1, centre_weight=3.0, centre_fraction=0.5, return_evidence=False):
     """Unary terms ``h`` (H, W): evidence for the sign of each pixel's representative ``o``
     from occluding contours (positive: ``o`` itself points the right way).
 
@@ -142,6 +142,10 @@ def contour_anchors(o, theta, confidence, mask, steep_deg=70.0, hole_deg=45.0, b
       the (smoothed) zenith grows;
     * every pixel near the middle of its connected part (Gaussian weight, ``centre_fraction``
       of the part's RMS radius) votes, weakly, for pointing away from the part's centre.
+
+    With ``return_evidence``, also the weight (H, W) of the occluding-contour evidence alone
+    (the first three kinds of vote, without the alignment): where a part has none, its sign
+    is the convex prior's choice, which the data cannot confirm.
     """
     m = np.asarray(mask, dtype=bool)
     th = np.where(m, np.nan_to_num(theta), 0.0)
@@ -172,6 +176,9 @@ def contour_anchors(o, theta, confidence, mask, steep_deg=70.0, hole_deg=45.0, b
     inner = m & ~edge & (th >= np.radians(steep_deg)) & (gn > 1e-6)
     cosg = np.sum(a * grad, axis=-1) / np.maximum(gn, 1e-12)
     h[inner] = (s2 * cosg)[inner]
+    evidence = np.zeros(m.shape)
+    evidence[edge] = (s2 * occluding)[edge]
+    evidence[inner] = s2[inner]
     # and, weaker still, the middle of each part bulges towards the camera: its normals point
     # away from the part's centre (what decides a wavy sheet, which has no occluding contour
     # and whose edges may cut its waves anywhere)
@@ -187,7 +194,8 @@ def contour_anchors(o, theta, confidence, mask, steep_deg=70.0, hole_deg=45.0, b
         w = np.exp(-0.5 * (dist / np.maximum(centre_fraction * rad, 1.0)) ** 2)
         radial = (a[r, c, 0] * dx + a[r, c, 1] * dy) / np.maximum(dist, 1e-9)
         h[r, c] += centre_weight * cut_weight * s2[r, c] * radial * w
-    return h * np.clip(confidence, 0.0, None)
+    c = np.clip(confidence, 0.0, None)
+    return (h * c, evidence * c) if return_evidence else h * c
 
 
 def _regions(o, confidence, mask, min_confidence=0.2, min_agreement=0.8, smooth_agreement=0.9,
@@ -466,13 +474,19 @@ def _signs(o, th, conf, m, first, second, max_pixels):
 
 
 def resolve_azimuth_global(azimuth_mod_deg, zenith_deg, mask, confidence=None, first=1.0, second=1.0,
-                           max_pixels=12000):
+                           max_pixels=12000, return_info=False, min_evidence=3.0):
     """Azimuth in [0, 360) (degrees; NaN outside the mask) from the azimuth modulo 180°,
     the zenith and a per-pixel confidence (0-1, e.g. the normalised precision of the
     normal's image-plane part; default 1), by minimising the energy of the module docstring.
 
     Masks of more than ``max_pixels`` pixels are solved on 2 x 2 blocks (recursively): each
     pixel then takes the sign that agrees with its block's (interpolated) signed normal.
+
+    With ``return_info``, also a dict: ``sign_by_prior``, the fraction of the mask's pixels
+    in connected parts whose occluding-contour evidence (:func:`contour_anchors`) weighs less
+    than ``min_evidence`` (about as many fully confident steep pixels): an open sheet, a
+    shallow cap. There the global sign is the convex prior's; the mirror image ``z -> -z``
+    fits the data as well.
     """
     m = np.asarray(mask, dtype=bool)
     phi = np.radians(np.nan_to_num(np.asarray(azimuth_mod_deg, dtype=np.float64)))
@@ -483,4 +497,13 @@ def resolve_azimuth_global(azimuth_mod_deg, zenith_deg, mask, confidence=None, f
     o = np.where(m[..., None], o, 0.0)
     s = _signs(o, th, conf, m, first, second, max_pixels)
     az = np.where(s < 0, phi + np.pi, phi)
-    return np.where(m, np.mod(np.degrees(az), 360.0), np.nan)
+    az = np.where(m, np.mod(np.degrees(az), 360.0), np.nan)
+    if not return_info:
+        return az
+    _, evidence = contour_anchors(o, th, conf, m, return_evidence=True)
+    labels, count = ndimage.label(m)
+    weight = np.bincount(labels[m], weights=evidence[m], minlength=count + 1)
+    size = np.bincount(labels[m], minlength=count + 1)
+    by_prior = float(size[1:][weight[1:] < min_evidence].sum() / max(int(m.sum()), 1))
+    return az, {"sign_by_prior": by_prior}
+

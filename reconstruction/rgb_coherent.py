@@ -169,7 +169,7 @@ def reconstruct_coherent(capture: RGBCapture, progress: bool = False, rounds: in
     # the azimuth's sign for the whole object at once (occluding contours, holes, ridges),
     # confidence 1 where the axis is known to 0.05 rad
     conf = np.clip(w_n * np.sin(np.radians(np.nan_to_num(zen))) ** 2 * 0.05 ** 2, 0.0, 1.0)
-    az = resolve_azimuth_global(az, zen, mask, conf)
+    az, az_info = resolve_azimuth_global(az, zen, mask, conf, return_info=True)
     timings["azimuth"] = time.perf_counter() - t
 
     t = time.perf_counter()
@@ -223,6 +223,7 @@ def reconstruct_coherent(capture: RGBCapture, progress: bool = False, rounds: in
     valid = np.zeros(mask.shape, dtype=bool)
     valid[mask] = ok
     info = {**capture.info, "timings_s": timings, "noise_sigma": sigma, "thickness_order_open": open_orders,
+            "azimuth_sign_by_prior": az_info["sign_by_prior"],
             "notes": "coherent Airy model inverted jointly per pixel (zenith, azimuth, thickness), "
                      "then integrated to one surface and re-fitted with surface and thickness priors"}
     return Estimate(normals, np.where(mask, thick, 0.0), valid, capture.info["film_ior"],

@@ -491,7 +491,7 @@ def reconstruct_stokes(stokes, wavelengths_nm, substrate_ior, mask, smoothness=2
     w_img[mask] = w_n
     # confidence in the azimuth's axis: 1 where its standard deviation is below 0.05 rad
     conf = np.clip(w_img * np.sin(np.radians(np.nan_to_num(zen))) ** 2 * 0.05 ** 2, 0.0, 1.0)
-    az = resolve_azimuth_global(azm, zen, mask, conf)
+    az, az_info = resolve_azimuth_global(azm, zen, mask, conf, return_info=True)
     t["azimuth"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     from thinfilm.core.conventions import angles_to_normals
@@ -532,6 +532,7 @@ def reconstruct_stokes(stokes, wavelengths_nm, substrate_ior, mask, smoothness=2
     explained[mask] = chi2 < max_chi2
     valid = mask & np.isfinite(thickness) & explained
     info = {"timings_s": t, **n2_info, "capture": "stokes", "refit_poor": int(bad.sum()),
+            "azimuth_sign_by_prior": az_info["sign_by_prior"],
             "unexplained_pixels": int(np.sum(chi2 >= max_chi2)),
             "smoothness": smoothness}
     return Estimate(normals=out_n, thickness_nm=thickness, valid=valid, film_ior=float(n2),

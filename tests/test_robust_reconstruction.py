@@ -400,6 +400,28 @@ def test_global_azimuth_on_a_sheet_with_a_crest_in_the_middle():
     assert np.mean(err) < 1.0
 
 
+def test_global_azimuth_says_where_only_the_convex_prior_decides():
+    """A sheet (no occluding contour) and a torus facing the camera beside it: the sheet's
+    pixels are the fraction whose sign the convex prior alone chose; a torus alone has none."""
+    from thinfilm.reconstruction.azimuth import resolve_azimuth_global
+
+    def run(normals, mask):
+        th = np.degrees(np.arccos(np.clip(normals[..., 2], -1, 1)))
+        phi = np.mod(np.degrees(np.arctan2(normals[..., 1], normals[..., 0])), 180.0)
+        return resolve_azimuth_global(np.where(mask, phi, np.nan), np.where(mask, th, np.nan), mask,
+                                      return_info=True)[1]["sign_by_prior"]
+
+    torus, tmask = _torus_field(48, 0.0)
+    assert run(torus, tmask) == 0.0
+    y, x = np.mgrid[24:-24:-1, -24:24].astype(float) / 24.0
+    dz = -0.06 * 2 * np.pi * np.sin(2 * np.pi * x)          # z = 0.06 cos(2 pi x), slope per unit
+    sheet = np.stack([-dz, np.zeros_like(dz), np.ones_like(dz)], -1)
+    sheet /= np.linalg.norm(sheet, axis=-1, keepdims=True)
+    both = np.concatenate([sheet, np.zeros((48, 4, 3)), torus], axis=1)
+    bmask = np.concatenate([np.ones((48, 48), bool), np.zeros((48, 4), bool), tmask], axis=1)
+    assert run(both, bmask) == pytest.approx(48 * 48 / bmask.sum())
+
+
 # --- thickness basins chosen together -------------------------------------------------------------------
 
 def test_choose_smooth_outvotes_noise_between_near_equal_basins():
