@@ -35,7 +35,7 @@ from .lm import levenberg_marquardt
 from .rgb_model import FilmCamera, FilmTable, film_table
 
 __all__ = ["InversionTable", "PixelFit", "PixelPrior", "build_table", "coarse_search", "refine_pixels",
-           "invert_pixels"]
+           "invert_pixels", "pooled_thickness"]
 
 
 @dataclass
@@ -364,3 +364,49 @@ def invert_pixels(model: FilmCamera, I_obs, angles_deg, thickness_range_nm, tabl
     if return_candidates:
         return out, (pix, fit)
     return out
+
+
+def pooled_thickness(table: InversionTable, I_obs, angles_deg, zenith_deg, mask, sigma, sigma_px: float = 8.0,
+                     zenith_rows: int = 5, max_zenith_deg: float = 65.0, cap_chi2: float = 9.0):
+    """Each pixel's thickness from the evidence of its neighbourhood: for weak fringes, where
+    a pixel alone leaves its order of interference open.
+
+    Every pixel's misfit is profiled over the table's thickness grid (at each thickness the
+    best of the table's zenith rows within ``zenith_rows`` of the pixel's zenith, and the best
+    azimuth, in closed form as in :func:`coarse_search`), the profiles are averaged over a
+    Gaussian window of ``sigma_px`` pixels on the mask (the thickness varies smoothly, the
+    zenith need not), and each pixel takes the thickness of the lowest average.
+
+    Returns (N,) thickness in nm for the mask pixels (in the mask's order).
+    """
+    from scipy import ndimage
+
+    I_obs = np.asarray(I_obs, dtype=np.float64)
+    S0, S1, S2 = fit_stokes(np.moveaxis(I_obs, 1, 0), angles_deg)
+    w0, w1 = _cost_weights(angles_deg)
+    zen = np.unique(table.zenith_deg)
+    thick = np.unique(table.thickness_nm)
+    Z, T = zen.size, thick.size
+    S0t, Pt = table.S0.reshape(Z, T, 3), table.P.reshape(Z, T, 3)
+    e_norm = w0 * np.sum(S0t ** 2, axis=-1) + w1 * np.sum(Pt ** 2, axis=-1)          # (Z, T)
+    const = w0 * np.sum(S0 ** 2, axis=1) + w1 * np.sum(S1 ** 2 + S2 ** 2, axis=1)
+    near = np.clip(np.searchsorted(zen, np.asarray(zenith_deg, dtype=np.float64)), 0, Z - 1)
+    profile = np.full((S0.shape[0], T), np.inf)
+    for off in range(-zenith_rows, zenith_rows + 1):
+        r = np.clip(near + off, 0, Z - 1)
+        y0 = np.einsum("ntc,nc->nt", S0t[r], S0)
+        y1 = np.einsum("ntc,nc->nt", Pt[r], S1)
+        y2 = np.einsum("ntc,nc->nt", Pt[r], S2)
+        np.minimum(profile, e_norm[r] - 2.0 * w0 * y0 - 2.0 * w1 * np.hypot(y1, y2), out=profile)
+    profile += const[:, None]
+    # each pixel's profile relative to its own best, in units of the noise, capped: a pixel the
+    # model cannot explain (an inter-reflection) cannot outvote its neighbours
+    profile = np.minimum((profile - profile.min(axis=1, keepdims=True)) / sigma ** 2, cap_chi2)
+    m = np.asarray(mask, dtype=bool)
+    use = np.zeros(m.shape, dtype=bool)
+    use[m] = np.asarray(zenith_deg) < max_zenith_deg
+    vol = np.zeros(m.shape + (T,), dtype=np.float32)
+    vol[use] = profile[use[m]]
+    weight = ndimage.gaussian_filter(use.astype(np.float64), sigma_px)[m]
+    pooled = ndimage.gaussian_filter(vol, (sigma_px, sigma_px, 0))[m] / np.maximum(weight, 1e-12)[:, None]
+    return thick[np.argmin(pooled, axis=1)]

@@ -435,15 +435,17 @@ def test_user_mask_and_indices_from_the_command_line(small_dataset, tmp_path, ca
 def test_coherent_method_says_when_the_fringes_leave_the_order_open(tmp_path, film_ior, substrate_ior, weak):
     """A film whose index is within 0.015 of its substrate's has fringes so weak that several
     orders of interference fit the colours within the noise: the estimate says at which
-    fraction of the pixels (``thickness_order_open``), and warns once most are open."""
+    fraction of the pixels (``thickness_order_open``), and warns once most are open. The
+    order then comes from each pixel's neighbourhood (:func:`pooled_thickness`): 6 nm mean
+    error here, against 41 nm from the pixels' own joint choice."""
     import warnings
 
     from thinfilm.core.errors import ThinfilmWarning
     from thinfilm.reconstruct import reconstruct
 
     path = tmp_path / "ds"
-    write_synthetic_dataset(path, "hemisphere", 32, film_ior=film_ior, substrate_ior=substrate_ior,
-                            thickness=(560.0, 540.0), noise=True, seed=3)
+    _, mask, thick = write_synthetic_dataset(path, "hemisphere", 32, film_ior=film_ior, substrate_ior=substrate_ior,
+                                             thickness=(560.0, 540.0), noise=True, seed=3)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         res, _ = reconstruct("rgb", path, "coherent")
@@ -453,3 +455,6 @@ def test_coherent_method_says_when_the_fringes_leave_the_order_open(tmp_path, fi
         assert open_ > 0.85 and len(said) == 1
     else:
         assert open_ < 0.25 and not said          # most pixels decided by their own colours
+    v = res.valid & mask
+    assert v.sum() > 0.9 * mask.sum()
+    assert np.abs(res.thickness_nm - thick)[v].mean() < 10.0
