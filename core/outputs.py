@@ -525,6 +525,20 @@ def clean_stale_temporaries(parent) -> list:
 # -- whole folders --------------------------------------------------------------------------------
 
 @contextlib.contextmanager
+def _locked(out, command, inputs, created):
+    """Create the missing parents of ``out`` (recorded in ``created``), hold the lock of
+    ``out``, clear stale temporaries beside it and check ``out`` again under the lock."""
+    try:
+        _make_parents(out.parent, created)
+    except OSError as e:
+        raise UserError(f"--out {out}: cannot create the folder ({_reason(e)})") from None
+    with output_lock(out):
+        clean_stale_temporaries(out.parent)
+        check_output_dir(out, command=command, inputs=inputs)
+        yield
+
+
+@contextlib.contextmanager
 def atomic_output_dir(out, *, command=None, inputs=()):
     """Yield a new temporary folder beside ``out``; when the block succeeds, mark it, give it
     normal permissions and swap it into place at ``out`` (see the module docstring).
@@ -539,13 +553,7 @@ def atomic_output_dir(out, *, command=None, inputs=()):
     out = check_output_dir(out, command=command, inputs=inputs)
     created = []
     try:
-        try:
-            _make_parents(out.parent, created)
-        except OSError as e:
-            raise UserError(f"--out {out}: cannot create the folder ({_reason(e)})") from None
-        with output_lock(out):
-            clean_stale_temporaries(out.parent)
-            check_output_dir(out, command=command, inputs=inputs)
+        with _locked(out, command, inputs, created):
             tmp = out.parent / _temp_name(out.name)
             try:
                 try:
@@ -703,13 +711,7 @@ def open_output_dir(out, *, command=None, inputs=()):
     fresh = not out.exists()
     created = []
     try:
-        try:
-            _make_parents(out.parent, created)
-        except OSError as e:
-            raise UserError(f"--out {out}: cannot create the folder ({_reason(e)})") from None
-        with output_lock(out):
-            clean_stale_temporaries(out.parent)
-            check_output_dir(out, command=command, inputs=inputs)
+        with _locked(out, command, inputs, created):
             try:
                 if not out.exists():
                     out.mkdir()
