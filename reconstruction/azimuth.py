@@ -129,7 +129,7 @@ def _outward(mask, smooth_px=1.5):
 
 
 def contour_anchors(o, theta, confidence, mask, steep_deg=70.0, hole_deg=45.0, band_px=2.0, cut_deg=45.0,
-                    cut_weight=0.1, centre_weight=3.0, centre_fraction=0.5, return_evidence=False):
+                    cut_weight=0.01, centre_weight=3.0, centre_fraction=0.5, return_evidence=False):
     """Unary terms ``h`` (H, W): evidence for the sign of each pixel's representative ``o``
     from occluding contours (positive: ``o`` itself points the right way).
 
@@ -142,6 +142,11 @@ def contour_anchors(o, theta, confidence, mask, steep_deg=70.0, hole_deg=45.0, b
       the (smoothed) zenith grows;
     * every pixel near the middle of its connected part (Gaussian weight, ``centre_fraction``
       of the part's RMS radius) votes, weakly, for pointing away from the part's centre.
+
+    The votes of edges that are not occluding (a sheet's, a shallow cap's rim) and of the
+    middle are priors, weighted ``cut_weight`` (1 % of an occluding contour's): they decide
+    what the smoothness leaves open (the global sign of a part with no occluding contour,
+    parts no coupling joins), never a low wave's ridge against it, which they did at 10 %.
 
     With ``return_evidence``, also the weight (H, W) of the occluding-contour evidence alone
     (the first three kinds of vote, without the alignment): where a part has none, its sign
@@ -303,28 +308,82 @@ def _icm(classes, h, s, sweeps):
     return s
 
 
-def _gap_couplings(Jc, h, region_of, orient, free, colour, sweeps=8):
-    """Effective couplings and unary terms of regions through the free pixels between them.
+def _complete(rings, h, s, sweeps):
+    """Iterated conditional modes over free pixels prepared by :func:`_rings`: ring by ring
+    outwards from the fixed pixels (each ring by the field of the pixels set before it), then
+    ``sweeps`` sweeps over all of them. ``s`` is changed in place and returned."""
+    steps, classes = rings
+    for ring, ring_classes in steps:
+        s = _icm(ring_classes, h, s, 1)
+        s[ring] = np.where(s[ring] == 0, 1.0, s[ring])
+    return _icm(classes, h, s, sweeps)
 
-    For every connected group of free pixels and every pair of regions it touches, the free
-    pixels are solved (iterated conditional modes) for each of the four sign choices of
-    the two regions; the energies of the terms that involve the free pixels, ``E(σa, σb)``,
-    decompose exactly as ``c - J σa σb - ha σa - hb σb``. Unary parts are shared among the
-    pairs of a group (a group touching r regions takes part in r - 1 pairs per region).
 
-    Returns ``({(a, b): J}, {a: h})``.
+def _rings(Jc, free_idx, dist, colour):
+    """The rings of ``free_idx`` by distance ``dist`` from the fixed pixels, and the colour
+    classes of all of them (the work of :func:`_complete` that no sign changes)."""
+    steps = [(ring, _icm_classes(Jc, ring, colour))
+             for ring in (free_idx[dist[free_idx] == level] for level in np.unique(dist[free_idx]))]
+    return steps, _icm_classes(Jc, free_idx, colour)
+
+
+def _gap_tables(Jc, h, region_of, orient, free, colour, dist, max_regions=6, sweeps=8):
+    """The energy of every connected group of free pixels as a function of the signs of the
+    regions it touches: for each of their ``2^r`` sign choices, the group is completed as in
+    the final pass (:func:`_complete`) and the energy of the terms that involve it is kept.
+
+    Returns a list of ``(regions, energies)``, ``energies[b]`` for the choice whose bit ``i``
+    set means region ``regions[i]`` flipped (sign -1). Groups that touch more than
+    ``max_regions`` regions are left out (the caller approximates them pairwise).
     """
-    pair_j, unary = {}, {}
+    tables, many = [], []
     labels, count = ndimage.label(free, structure=np.ones((3, 3)))
     lab = labels.ravel()
+    n = Jc.shape[0]
     for g in range(1, count + 1):
         G = np.nonzero(lab == g)[0]
         JG = Jc[G]
         touched = np.unique(JG.indices)
         regs = np.unique(region_of[touched])
         regs = regs[regs >= 0]
-        if regs.size < 2:
+        if regs.size == 0:
             continue
+        if regs.size > max_regions:
+            many.append(G)
+            continue
+        fixed = touched[region_of[touched] >= 0]
+        which = np.searchsorted(regs, region_of[fixed])
+        rings = _rings(Jc, G, dist, colour)
+        JGG = JG[:, G]
+        energies = np.empty(2 ** regs.size)
+        for b in range(energies.size):
+            sig = np.where((b >> np.arange(regs.size)) & 1, -1.0, 1.0)
+            s = np.zeros(n)
+            s[fixed] = orient[fixed] * sig[which]
+            s = _complete(rings, h, s, sweeps)
+            sG = s[G]
+            sF = s.copy()
+            sF[G] = 0.0
+            energies[b] = -0.5 * sG @ (JGG @ sG) - sG @ (JG @ sF) - h[G] @ sG
+        tables.append((regs, energies))
+    return tables, many
+
+
+def _gap_couplings(Jc, h, region_of, orient, groups, colour, sweeps=8):
+    """Pairwise approximation of the energy of groups of free pixels that touch many regions:
+    for every pair of regions a group touches, the group is solved (iterated conditional
+    modes) for each of the four sign choices of the two, the others left unset; the energies
+    ``E(σa, σb)`` decompose as ``c - J σa σb - ha σa - hb σb``. Unary parts are shared among
+    the pairs of a group (a group touching r regions takes part in r - 1 pairs per region).
+
+    Returns ``({(a, b): J}, {a: h})``.
+    """
+    pair_j, unary = {}, {}
+    for G in groups:
+        JG = Jc[G]
+        touched = np.unique(JG.indices)
+        regs = np.unique(region_of[touched])
+        regs = regs[regs >= 0]
         share = 1.0 / (regs.size - 1)
         classes = _icm_classes(Jc, G, colour)
         JGG = JG[:, G]
@@ -351,11 +410,60 @@ def _gap_couplings(Jc, h, region_of, orient, free, colour, sweeps=8):
     return pair_j, unary
 
 
-def resolve_signs(J, h, label, orient, mask, weight, min_region_weight=0.002, sweeps=10):
-    """Minimise ``-sᵀJs/2 - hᵀs`` (see the module docstring) given regions of fixed internal
-    orientation; returns the signs (flat, ±1 on the mask, 0 elsewhere)."""
+def _table_energy(configs, tables):
+    """Energies (C,) of the groups' tables for region sign choices ``configs`` (C, B)."""
+    e = np.zeros(configs.shape[0])
+    for regs, energies in tables:
+        bits = (configs[:, regs] < 0).astype(np.int64)
+        e += energies[bits @ (1 << np.arange(regs.size))]
+    return e
+
+
+def _minimise_regions(Jr, hr, tables, starts=256, passes=50):
+    """Region signs (B,) minimising ``-σᵀJrσ/2 - hrᵀσ`` plus the groups' tables
+    (:func:`_table_energy`): exactly by enumeration for up to :data:`EXACT_REGIONS` regions,
+    otherwise the best of ``starts`` descents by single flips (the unary terms' choice and
+    random starts from a fixed seed, so the result is reproducible), run side by side."""
     import itertools
 
+    B = hr.size
+
+    def energy(configs):
+        return -0.5 * np.einsum("ci,ij,cj->c", configs, Jr, configs) - configs @ hr + _table_energy(configs, tables)
+
+    if B <= EXACT_REGIONS:
+        configs = np.array(list(itertools.product((1.0, -1.0), repeat=B)))
+        return configs[int(np.argmin(energy(configs)))]
+    C = np.random.default_rng(0).choice([-1.0, 1.0], size=(starts, B))
+    C[0] = np.where(hr >= 0, 1.0, -1.0)
+    touching = [[(regs, energies, int(np.searchsorted(regs, k))) for regs, energies in tables if k in regs]
+                for k in range(B)]
+    for _ in range(passes):
+        changed = False
+        for k in range(B):
+            # energy with σk = +1 minus with σk = -1
+            d = -2.0 * (C @ Jr[k] + hr[k])
+            for regs, energies, pos in touching[k]:
+                idx = (C[:, regs] < 0).astype(np.int64) @ (1 << np.arange(regs.size))
+                d += energies[idx & ~(1 << pos)] - energies[idx | (1 << pos)]
+            new = np.where(d < 0, 1.0, np.where(d > 0, -1.0, C[:, k]))
+            changed |= bool(np.any(new != C[:, k]))
+            C[:, k] = new
+        if not changed:
+            break
+    return C[int(np.argmin(energy(C)))]
+
+
+def resolve_signs(J, h, label, orient, mask, weight, min_region_weight=0.002, sweeps=10):
+    """Minimise ``-sᵀJs/2 - hᵀs`` (see the module docstring) given regions of fixed internal
+    orientation; returns the signs (flat, ±1 on the mask, 0 elsewhere).
+
+    The regions are oriented jointly by the energy within and between them plus, for every
+    group of free pixels between them, its energy once completed for each sign choice of the
+    regions it touches (:func:`_gap_tables`): exactly by enumeration for up to
+    :data:`EXACT_REGIONS` regions, otherwise by the best of many descents
+    (:func:`_minimise_regions`).
+    """
     import scipy.sparse as sp
 
     n = J.shape[0]
@@ -366,59 +474,58 @@ def resolve_signs(J, h, label, orient, mask, weight, min_region_weight=0.002, sw
     colour = (rr % 3) * 3 + (cc % 3)
     Jc = J.tocsr()
     K = int(label.max()) + 1 if (label >= 0).any() else 0
-    s = np.zeros(n)
     region_of = np.full(n, -1, dtype=np.int64)
+    fixed = np.zeros(n, dtype=bool)
     if K:
         rw = np.bincount(label[label >= 0], weights=wf[label >= 0], minlength=K)
         big = np.nonzero(rw >= min_region_weight * max(rw.sum(), 1e-300))[0]
-        in_big = np.isin(label, big)
+        fixed = np.isin(label, big)
         # regions renumbered 0 .. B-1
-        region_of[in_big] = np.searchsorted(big, label[in_big])
+        region_of[fixed] = np.searchsorted(big, label[fixed])
         B = big.size
-        P = sp.csr_matrix((orient[in_big], (np.nonzero(in_big)[0], region_of[in_big])), shape=(n, B))
+    dist = (ndimage.distance_transform_cdt(~fixed.reshape(H, W), metric="chessboard").ravel()
+            if fixed.any() else np.zeros(n, dtype=np.int64))
+    if K:
+        P = sp.csr_matrix((orient[fixed], (np.nonzero(fixed)[0], region_of[fixed])), shape=(n, B))
         Jr = (P.T @ Jc @ P).toarray()
         np.fill_diagonal(Jr, 0.0)
         hr = P.T @ h
-        pair_j, unary = _gap_couplings(Jc, h, region_of, orient, (m & ~in_big).reshape(H, W), colour)
+        tables, many = _gap_tables(Jc, h, region_of, orient, (m & ~fixed).reshape(H, W), colour, dist)
+        pair_j, unary = _gap_couplings(Jc, h, region_of, orient, many, colour)
         for (a, b), v in pair_j.items():
             Jr[a, b] += v
             Jr[b, a] += v
         for a, v in unary.items():
             hr[a] += v
-        if B <= EXACT_REGIONS:
-            configs = np.array(list(itertools.product((1.0, -1.0), repeat=B)))
-            e = -0.5 * np.einsum("ci,ij,cj->c", configs, Jr, configs) - configs @ hr
-            sig = configs[int(np.argmin(e))]
-        else:
-            sig = np.where(hr >= 0, 1.0, -1.0)
-            for _ in range(100):
-                changed = False
-                for k in np.argsort(-rw[big]):
-                    new = 1.0 if Jr[k] @ sig + hr[k] >= 0 else -1.0
-                    if new != sig[k]:
-                        sig[k] = new
-                        changed = True
-                if not changed:
-                    break
-        s[in_big] = orient[in_big] * sig[region_of[in_big]]
-        fixed = in_big
-    else:
-        fixed = np.zeros(n, dtype=bool)
+        sig = _minimise_regions(Jr, hr, tables)
     # the rest: iterated conditional modes in 3 x 3 colour classes (pixels of one class share
     # no coupling, which reaches two pixels along a line), from the fixed pixels outwards
     free = np.nonzero(m & ~fixed)[0]
-    if free.size:
-        # first ring by ring outwards from the fixed pixels (each ring by the field of the
-        # pixels set before it), then sweeps over all of them
-        if fixed.any():
-            dist = ndimage.distance_transform_cdt(~fixed.reshape(H, W), metric="chessboard").ravel()
-        else:
-            dist = np.zeros(n, dtype=np.int64)
-        for level in np.unique(dist[free]):
-            ring = free[dist[free] == level]
-            s = _icm(_icm_classes(Jc, ring, colour), h, s, 1)
-            s[ring] = np.where(s[ring] == 0, 1.0, s[ring])
-        s = _icm(_icm_classes(Jc, free, colour), h, s, sweeps)
+    rings = _rings(Jc, free, dist, colour) if free.size else None
+
+    def complete(sig):
+        s = np.zeros(n)
+        if K:
+            s[fixed] = orient[fixed] * sig[region_of[fixed]]
+        if rings is not None:
+            s = _complete(rings, h, s, sweeps)
+        return s, -0.5 * s @ (Jc @ s) - h @ s
+
+    s, e = complete(sig if K else None)
+    if K and many:
+        # the pairwise approximation of groups that touch many regions may mislead: each
+        # region's sign is flipped in turn and kept where the whole energy, the free pixels
+        # completed again, falls
+        for _ in range(4):
+            changed = False
+            for k in np.argsort(-rw[big]):
+                trial = sig.copy()
+                trial[k] = -trial[k]
+                s_t, e_t = complete(trial)
+                if e_t < e - 1e-9 * abs(e):
+                    sig, s, e, changed = trial, s_t, e_t, True
+            if not changed:
+                break
     return np.where(m, s, 0.0)
 
 
