@@ -422,8 +422,9 @@ def _table_energy(configs, tables):
 def _minimise_regions(Jr, hr, tables, starts=256, passes=50):
     """Region signs (B,) minimising ``-σᵀJrσ/2 - hrᵀσ`` plus the groups' tables
     (:func:`_table_energy`): exactly by enumeration for up to :data:`EXACT_REGIONS` regions,
-    otherwise the best of ``starts`` descents by single flips (the unary terms' choice and
-    random starts from a fixed seed, so the result is reproducible), run side by side."""
+    otherwise the best of ``starts`` descents by single flips (from all +1, the unary terms'
+    choice and random starts from a fixed seed, so the result is reproducible and never
+    worse than all +1), run side by side."""
     import itertools
 
     B = hr.size
@@ -435,7 +436,8 @@ def _minimise_regions(Jr, hr, tables, starts=256, passes=50):
         configs = np.array(list(itertools.product((1.0, -1.0), repeat=B)))
         return configs[int(np.argmin(energy(configs)))]
     C = np.random.default_rng(0).choice([-1.0, 1.0], size=(starts, B))
-    C[0] = np.where(hr >= 0, 1.0, -1.0)
+    C[0] = 1.0
+    C[1] = np.where(hr >= 0, 1.0, -1.0)
     touching = [[(regs, energies, int(np.searchsorted(regs, k))) for regs, energies in tables if k in regs]
                 for k in range(B)]
     for _ in range(passes):
@@ -452,6 +454,34 @@ def _minimise_regions(Jr, hr, tables, starts=256, passes=50):
         if not changed:
             break
     return C[int(np.argmin(energy(C)))]
+
+
+def _refine_cells(Jc, h, s, region_of, fixed, shape, rings, sweeps, rounds=3):
+    """Flip whole cells where that lowers the energy: a cell is a region with the free pixels
+    nearest to it, their signs as completed. The energy of flipping any union of cells is
+    exactly an Ising energy over the cells (``-σᵀCσ/2 - hcᵀσ``, ``C`` the couplings between
+    cells of the signed field ``s``), minimised by :func:`_minimise_regions`; the free pixels
+    are then swept again. This undoes what the approximate energies of the regions' choice
+    got wrong (several regions that only flip together, such as a small torus's tube)."""
+    import scipy.sparse as sp
+
+    n = s.size
+    on = np.nonzero(s != 0)[0]
+    _, (ir, ic) = ndimage.distance_transform_edt(~fixed.reshape(shape), return_indices=True)
+    cell = region_of[(ir * shape[1] + ic).ravel()]
+    B = int(cell[on].max()) + 1
+    P = sp.csr_matrix((np.ones(on.size), (on, cell[on])), shape=(n, B))
+    for _ in range(rounds):
+        Ss = sp.diags(s)
+        C = (P.T @ (Ss @ Jc @ Ss) @ P).toarray()
+        np.fill_diagonal(C, 0.0)
+        sig = _minimise_regions(C, P.T @ (s * h), [])
+        if np.all(sig == sig[0]) and sig[0] > 0:
+            break
+        s = s * sig[cell]
+        if rings is not None:
+            s = _icm(rings[1], h, s, sweeps)
+    return s
 
 
 def resolve_signs(J, h, label, orient, mask, weight, min_region_weight=0.002, sweeps=10):
@@ -502,30 +532,13 @@ def resolve_signs(J, h, label, orient, mask, weight, min_region_weight=0.002, sw
     # no coupling, which reaches two pixels along a line), from the fixed pixels outwards
     free = np.nonzero(m & ~fixed)[0]
     rings = _rings(Jc, free, dist, colour) if free.size else None
-
-    def complete(sig):
-        s = np.zeros(n)
-        if K:
-            s[fixed] = orient[fixed] * sig[region_of[fixed]]
-        if rings is not None:
-            s = _complete(rings, h, s, sweeps)
-        return s, -0.5 * s @ (Jc @ s) - h @ s
-
-    s, e = complete(sig if K else None)
-    if K and many:
-        # the pairwise approximation of groups that touch many regions may mislead: each
-        # region's sign is flipped in turn and kept where the whole energy, the free pixels
-        # completed again, falls
-        for _ in range(4):
-            changed = False
-            for k in np.argsort(-rw[big]):
-                trial = sig.copy()
-                trial[k] = -trial[k]
-                s_t, e_t = complete(trial)
-                if e_t < e - 1e-9 * abs(e):
-                    sig, s, e, changed = trial, s_t, e_t, True
-            if not changed:
-                break
+    s = np.zeros(n)
+    if K:
+        s[fixed] = orient[fixed] * sig[region_of[fixed]]
+    if rings is not None:
+        s = _complete(rings, h, s, sweeps)
+    if K:
+        s = _refine_cells(Jc, h, s, region_of, fixed, (H, W), rings, sweeps)
     return np.where(m, s, 0.0)
 
 

@@ -417,14 +417,14 @@ def _low_wave(slope, cross, res=80, periods=2.5, angle_deg=20.0):
     return n / np.linalg.norm(n, axis=-1, keepdims=True), np.ones(x.shape, dtype=bool)
 
 
-@pytest.mark.parametrize("slope, cross, sigma_v", [(0.2, False, 0.004), (0.15, False, 0.002), (0.15, True, 0.004)])
+@pytest.mark.parametrize("slope, cross, sigma_v", [(0.2, False, 0.004), (0.15, False, 0.002), (0.2, True, 0.005)])
 def test_global_azimuth_on_low_waves(slope, cross, sigma_v):
     """Low waves (zenith 9-11°) with noisy axes: the ridges and valleys, where the axes are
     noise, are told from folds by the smoothness of the whole sheet; the priors (the middle
     bulges, the edges lie lower) only choose between the sheet and its mirror image, which
-    the data cannot tell apart. With priors a tenth as strong as an occluding contour's they
-    turned a third of these waves over; so did orienting the regions by single flips and by
-    pairwise couplings through free pixels that touch many regions."""
+    the data cannot tell apart. With priors a tenth as strong as an occluding contour's, the
+    regions oriented by single flips and by pairwise couplings through the free pixels, a
+    fifth to two fifths of these waves were turned over."""
     normals, mask = _low_wave(slope, cross)
     err = _signs_error(normals, mask, sigma_v=sigma_v)
     err_mirror = _signs_error(normals * np.array([-1.0, -1.0, 1.0]), mask, sigma_v=sigma_v)
