@@ -21,11 +21,19 @@ minimise one energy over the object (an Ising model, ``E(s) = -Σ J_ij s_i s_j -
   vanishes at normal incidence: the convex choice, edges lower than the middle; the data
   cannot tell (the mirror sheet gives the same images).
 
-The energy is minimised in two stages: regions of confidently and consistently oriented
-pixels (joined by strong first-order agreement, with their relative orientation fixed
-along a maximum spanning forest) are oriented jointly by the whole energy summed between
-them (exactly, by enumeration, for up to :data:`EXACT_REGIONS` regions; otherwise greedily),
-then the remaining pixels (near normal incidence, isolated) by iterated conditional modes.
+The energy is minimised in three stages:
+
+1. regions of confidently and consistently oriented pixels (joined by strong first-order
+   agreement, their relative orientation fixed along a maximum spanning forest) are
+   oriented jointly: by the energy within and between them, plus, for every connected group
+   of the other (free) pixels, the group's energy once completed for each sign choice of
+   the regions it touches (pairwise couplings where it touches more than six); exactly, by
+   enumeration, for up to :data:`EXACT_REGIONS` regions, otherwise by the best of many
+   seeded descents;
+2. the free pixels (near normal incidence, ridges, isolated) by iterated conditional modes,
+   ring by ring outwards from the regions;
+3. whole cells (a region and the free pixels nearest it) are flipped where the exact energy
+   falls: over the cells it is again an Ising model, minimised as in 1.
 
 Every input is data (no ground truth), so this works on real captures.
 """
