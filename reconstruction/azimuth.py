@@ -27,13 +27,14 @@ The energy is minimised in three stages:
    agreement, their relative orientation fixed along a maximum spanning forest) are
    oriented jointly: by the energy within and between them, plus, for every connected group
    of the other (free) pixels, the group's energy once completed for each sign choice of
-   the regions it touches (pairwise couplings where it touches more than six); exactly, by
-   enumeration, for up to :data:`EXACT_REGIONS` regions, otherwise by the best of many
-   seeded descents;
+   the regions it touches (where it touches more than six, pairwise couplings between
+   neighbouring regions through their nearest free pixels); exactly, by enumeration, for up
+   to :data:`EXACT_REGIONS` regions, otherwise by the best of many seeded descents;
 2. the free pixels (near normal incidence, ridges, isolated) by iterated conditional modes,
    ring by ring outwards from the regions;
-3. whole cells (a region and the free pixels nearest it) are flipped where the exact energy
-   falls: over the cells it is again an Ising model, minimised as in 1.
+3. whole cells (a region, or the free pixels of a 4 px square nearest one region) are
+   flipped where the exact energy falls: over the cells it is again an Ising model,
+   minimised as in 1, then the free pixels are swept again.
 
 Every input is data (no ground truth), so this works on real captures.
 """
@@ -341,8 +342,8 @@ def _gap_tables(Jc, h, region_of, orient, free, colour, dist, max_regions=6, swe
     the final pass (:func:`_complete`) and the energy of the terms that involve it is kept.
 
     Returns a list of ``(regions, energies)``, ``energies[b]`` for the choice whose bit ``i``
-    set means region ``regions[i]`` flipped (sign -1). Groups that touch more than
-    ``max_regions`` regions are left out (the caller approximates them pairwise).
+    set means region ``regions[i]`` flipped (sign -1), and the groups (flat pixel indices)
+    that touch more than ``max_regions`` regions, for :func:`_gap_couplings`.
     """
     tables, many = [], []
     labels, count = ndimage.label(free, structure=np.ones((3, 3)))
@@ -377,44 +378,53 @@ def _gap_tables(Jc, h, region_of, orient, free, colour, dist, max_regions=6, swe
     return tables, many
 
 
-def _gap_couplings(Jc, h, region_of, orient, groups, colour, sweeps=8):
-    """Pairwise approximation of the energy of groups of free pixels that touch many regions:
-    for every pair of regions a group touches, the group is solved (iterated conditional
-    modes) for each of the four sign choices of the two, the others left unset; the energies
-    ``E(σa, σb)`` decompose as ``c - J σa σb - ha σa - hb σb``. Unary parts are shared among
-    the pairs of a group (a group touching r regions takes part in r - 1 pairs per region).
+def _gap_couplings(Jc, h, region_of, orient, groups, nearest, colour, sweeps=8):
+    """Pairwise approximation of the energy of groups of free pixels that touch many regions.
+
+    Each free pixel belongs to its nearest region's part of the group. For every pair of
+    regions whose parts are coupled, their two parts are solved (iterated conditional modes)
+    for each of the four sign choices of the two regions, the rest left unset; the energies
+    ``E(σa, σb)`` decompose as ``c - J σa σb - ha σa - hb σb``. A region's unary parts are
+    shared among its pairs. Only neighbouring parts are solved, so the work grows with the
+    group's size, not with the square of the regions it touches.
 
     Returns ``({(a, b): J}, {a: h})``.
     """
     pair_j, unary = {}, {}
+    n = Jc.shape[0]
     for G in groups:
-        JG = Jc[G]
-        touched = np.unique(JG.indices)
-        regs = np.unique(region_of[touched])
-        regs = regs[regs >= 0]
-        share = 1.0 / (regs.size - 1)
-        classes = _icm_classes(Jc, G, colour)
-        JGG = JG[:, G]
-        for a in range(regs.size):
-            for b in range(a + 1, regs.size):
-                ka, kb = regs[a], regs[b]
-                fixed = touched[(region_of[touched] == ka) | (region_of[touched] == kb)]
-                E = {}
-                for sa in (1.0, -1.0):
-                    for sb in (1.0, -1.0):
-                        s = np.zeros(Jc.shape[0])
-                        s[fixed] = orient[fixed] * np.where(region_of[fixed] == ka, sa, sb)
-                        s = _icm(classes, h, s, sweeps)
-                        sG = s[G]
-                        sF = s.copy()
-                        sF[G] = 0.0
-                        E[sa, sb] = -0.5 * sG @ (JGG @ sG) - sG @ (JG @ sF) - h[G] @ sG
-                pair_j[(ka, kb)] = pair_j.get((ka, kb), 0.0) + 0.25 * (
-                    E[1.0, -1.0] + E[-1.0, 1.0] - E[1.0, 1.0] - E[-1.0, -1.0])
-                ha = 0.25 * (E[-1.0, 1.0] + E[-1.0, -1.0] - E[1.0, 1.0] - E[1.0, -1.0])
-                hb = 0.25 * (E[1.0, -1.0] + E[-1.0, -1.0] - E[1.0, 1.0] - E[-1.0, 1.0])
-                unary[ka] = unary.get(ka, 0.0) + share * ha
-                unary[kb] = unary.get(kb, 0.0) + share * hb
+        JG = Jc[G].tocoo()
+        i, j = G[JG.row], JG.col
+        ci, cj = nearest[i], nearest[j]
+        ok = (ci != cj) & (ci >= 0) & (cj >= 0)
+        if not ok.any():
+            continue
+        pairs = np.unique(np.sort(np.stack([ci[ok], cj[ok]], 1), axis=1), axis=0)
+        degree = np.bincount(pairs.ravel(), minlength=int(pairs.max()) + 1)
+        part = nearest[G]
+        for ka, kb in pairs:
+            sub = G[(part == ka) | (part == kb)]
+            Js = Jc[sub]
+            touched = np.unique(Js.indices)
+            fixed = touched[(region_of[touched] == ka) | (region_of[touched] == kb)]
+            classes = _icm_classes(Jc, sub, colour)
+            Jss = Js[:, sub]
+            E = {}
+            for sa in (1.0, -1.0):
+                for sb in (1.0, -1.0):
+                    s = np.zeros(n)
+                    s[fixed] = orient[fixed] * np.where(region_of[fixed] == ka, sa, sb)
+                    s = _icm(classes, h, s, sweeps)
+                    sS = s[sub]
+                    sF = s.copy()
+                    sF[sub] = 0.0
+                    E[sa, sb] = -0.5 * sS @ (Jss @ sS) - sS @ (Js @ sF) - h[sub] @ sS
+            pair_j[(ka, kb)] = pair_j.get((ka, kb), 0.0) + 0.25 * (
+                E[1.0, -1.0] + E[-1.0, 1.0] - E[1.0, 1.0] - E[-1.0, -1.0])
+            ha = 0.25 * (E[-1.0, 1.0] + E[-1.0, -1.0] - E[1.0, 1.0] - E[1.0, -1.0])
+            hb = 0.25 * (E[1.0, -1.0] + E[-1.0, -1.0] - E[1.0, 1.0] - E[-1.0, 1.0])
+            unary[ka] = unary.get(ka, 0.0) + ha / degree[ka]
+            unary[kb] = unary.get(kb, 0.0) + hb / degree[kb]
     return pair_j, unary
 
 
@@ -443,6 +453,8 @@ def _minimise_regions(Jr, hr, tables, starts=256, passes=50):
     if B <= EXACT_REGIONS:
         configs = np.array(list(itertools.product((1.0, -1.0), repeat=B)))
         return configs[int(np.argmin(energy(configs)))]
+    # fewer starts for many regions: the work of a pass grows as starts x B²
+    starts = int(np.clip(4_000_000 // (B * B), 16, starts))
     C = np.random.default_rng(0).choice([-1.0, 1.0], size=(starts, B))
     C[0] = 1.0
     C[1] = np.where(hr >= 0, 1.0, -1.0)
@@ -464,20 +476,29 @@ def _minimise_regions(Jr, hr, tables, starts=256, passes=50):
     return C[int(np.argmin(energy(C)))]
 
 
-def _refine_cells(Jc, h, s, region_of, fixed, shape, rings, sweeps, rounds=3):
-    """Flip whole cells where that lowers the energy: a cell is a region with the free pixels
-    nearest to it, their signs as completed. The energy of flipping any union of cells is
-    exactly an Ising energy over the cells (``-σᵀCσ/2 - hcᵀσ``, ``C`` the couplings between
-    cells of the signed field ``s``), minimised by :func:`_minimise_regions`; the free pixels
-    are then swept again. This undoes what the approximate energies of the regions' choice
-    got wrong (several regions that only flip together, such as a small torus's tube)."""
+def _refine_cells(Jc, h, s, region_of, fixed, shape, rings, sweeps, rounds=3, block_px=4):
+    """Flip whole cells where that lowers the energy: a cell is a region, or the free pixels
+    of one ``block_px`` square nearest to one region, their signs as completed. The energy of
+    flipping any union of cells is exactly an Ising energy over the cells (``-σᵀCσ/2 -
+    hcᵀσ``, ``C`` the couplings between cells of the signed field ``s``), minimised by
+    :func:`_minimise_regions`; the free pixels are then swept again. This weighs the groups
+    of free pixels that touch many regions, and undoes what the regions' choice and the
+    pixel-by-pixel sweeps got wrong (a small torus's tube, mostly free pixels, whose parts
+    only flip together)."""
     import scipy.sparse as sp
 
     n = s.size
     on = np.nonzero(s != 0)[0]
     _, (ir, ic) = ndimage.distance_transform_edt(~fixed.reshape(shape), return_indices=True)
-    cell = region_of[(ir * shape[1] + ic).ravel()]
-    B = int(cell[on].max()) + 1
+    nearest = region_of[(ir * shape[1] + ic).ravel()]
+    # free pixels: by nearest region and block of block_px x block_px
+    rr, cc = np.divmod(on, shape[1])
+    blocks = ((rr // block_px) * (shape[1] // block_px + 1) + cc // block_px).astype(np.int64)
+    key = np.where(fixed[on], nearest[on], (nearest[on] + 1) * (blocks.max() + 1) + blocks + region_of.max() + 1)
+    _, inv = np.unique(key, return_inverse=True)
+    cell = np.zeros(n, dtype=np.int64)
+    cell[on] = inv
+    B = int(inv.max()) + 1
     P = sp.csr_matrix((np.ones(on.size), (on, cell[on])), shape=(n, B))
     for _ in range(rounds):
         Ss = sp.diags(s)
@@ -529,7 +550,9 @@ def resolve_signs(J, h, label, orient, mask, weight, min_region_weight=0.002, sw
         np.fill_diagonal(Jr, 0.0)
         hr = P.T @ h
         tables, many = _gap_tables(Jc, h, region_of, orient, (m & ~fixed).reshape(H, W), colour, dist)
-        pair_j, unary = _gap_couplings(Jc, h, region_of, orient, many, colour)
+        _, (ir, ic) = ndimage.distance_transform_edt(~fixed.reshape(H, W), return_indices=True)
+        nearest = np.where(m, region_of[(ir * W + ic).ravel()], -1)
+        pair_j, unary = _gap_couplings(Jc, h, region_of, orient, many, nearest, colour)
         for (a, b), v in pair_j.items():
             Jr[a, b] += v
             Jr[b, a] += v
@@ -617,6 +640,15 @@ def resolve_azimuth_global(azimuth_mod_deg, zenith_deg, mask, confidence=None, f
     fits the data as well.
     """
     m = np.asarray(mask, dtype=bool)
+    if min(m.shape) < 3:
+        # image gradients need three pixels: solve on the image framed by non-mask pixels
+        pad = ((2, 2), (2, 2))
+        conf_p = None if confidence is None else np.pad(np.asarray(confidence, dtype=np.float64), pad)
+        out = resolve_azimuth_global(np.pad(np.asarray(azimuth_mod_deg, dtype=np.float64), pad),
+                                     np.pad(np.asarray(zenith_deg, dtype=np.float64), pad), np.pad(m, pad),
+                                     conf_p, first, second, max_pixels, return_info, min_evidence)
+        crop = (slice(2, -2), slice(2, -2))
+        return (out[0][crop], out[1]) if return_info else out[crop]
     phi = np.radians(np.nan_to_num(np.asarray(azimuth_mod_deg, dtype=np.float64)))
     th = np.radians(np.nan_to_num(np.asarray(zenith_deg, dtype=np.float64)))
     conf = np.ones(m.shape) if confidence is None else np.clip(np.nan_to_num(confidence), 0.0, 1.0)

@@ -433,6 +433,20 @@ def test_global_azimuth_on_low_waves(slope, cross, sigma_v):
     assert np.mean(err) < 2.0 and np.mean(err > 5.0) < 0.02
 
 
+@pytest.mark.parametrize("rows", [1, 2])
+def test_global_azimuth_on_an_image_one_or_two_pixels_high(rows):
+    """A strip across a lying cylinder, one or two pixels high (image gradients need three):
+    the normals point out at both ends, left of the ridge and right of it."""
+    from thinfilm.reconstruction.azimuth import resolve_azimuth_global
+
+    x = np.arange(-4, 5, dtype=float)
+    zen = np.tile(np.degrees(np.arcsin(np.abs(x) / 4.2)), (rows, 1))
+    az = resolve_azimuth_global(np.zeros_like(zen), zen, np.ones(zen.shape, dtype=bool))
+    assert az.shape == zen.shape
+    np.testing.assert_array_equal(az[:, x < 0], 180.0)
+    np.testing.assert_array_equal(az[:, x > 0], 0.0)
+
+
 def test_global_azimuth_says_where_only_the_convex_prior_decides():
     """A sheet (no occluding contour) and a torus facing the camera beside it: the sheet's
     pixels are the fraction whose sign the convex prior alone chose; a torus alone has none."""
