@@ -64,7 +64,7 @@ def _pairs(mask, dr, dc, step=1):
     return r[ok] * W + c[ok], r2[ok] * W + c2[ok]
 
 
-def coupling_matrix(o, confidence, mask, first=1.0, second=1.0, scales=(1, 2, 4)):
+def coupling_matrix(o, confidence, mask, first=1.0, second=1.0, scales=(1, 2, 4), bridge=8):
     """The couplings ``J`` (sparse, symmetric, over flat pixel indices) of the smoothness energy.
 
     Parameters
@@ -73,11 +73,15 @@ def coupling_matrix(o, confidence, mask, first=1.0, second=1.0, scales=(1, 2, 4)
     confidence : (H, W) weight of each pixel (0 to 1).
     mask : (H, W) bool.
     first, second : weights of the first- and second-order terms.
+    scales : spacings (pixels) of the second-order triples.
+    bridge : a wider spacing whose triples count only where their middle pixel is not
+        confident (0: none).
     """
     import scipy.sparse as sp
 
     H, W = mask.shape
     of = o.reshape(-1, 2)
+    raw = np.clip(confidence, 0.0, 1.0).ravel()
     cf = (confidence * (1.0 - crease_strength(o, mask)) ** 2).ravel()
     rows, cols, vals = [], [], []
 
@@ -92,13 +96,23 @@ def coupling_matrix(o, confidence, mask, first=1.0, second=1.0, scales=(1, 2, 4)
         w = first * scale * np.sqrt(cf[i] * cf[j])
         add(i, j, 2.0 * w * np.einsum("ij,ij->i", of[i], of[j]))
         # triples i - j - k along the line (j the middle), at several spacings: across a
-        # ridge the normals near it are too small to tell, those a few pixels away are not
-        for step in scales:
+        # ridge the normals near it are too small to tell, those a few pixels away are not.
+        # The widest (``bridge``) only where the middle itself says nothing (its confidence,
+        # not a crease's cut): on a low, long wave the band without polarization can be wider
+        # than 8 px, while across a short wave's confident slopes or a crease so long a triple
+        # is not a line
+        for step in tuple(scales) + ((bridge,) if bridge else ()):
             i, k = _pairs(mask, dr, dc, 2 * step)
             j = i + step * (dr * W + dc)
             ok = mask.ravel()[j]
             i, j, k = i[ok], j[ok], k[ok]
             w = second * scale * np.sqrt(cf[i] * cf[k])
+            if step == bridge:
+                # and only along a path inside the mask (not across a hole or a gap)
+                inside = np.ones(i.size, dtype=bool)
+                for t in range(1, 2 * step):
+                    inside &= mask.ravel()[i + t * (dr * W + dc)]
+                w = w * (1.0 - raw[j]) * inside
             add(i, j, 4.0 * w * np.einsum("ij,ij->i", of[i], of[j]))
             add(j, k, 4.0 * w * np.einsum("ij,ij->i", of[j], of[k]))
             add(i, k, -2.0 * w * np.einsum("ij,ij->i", of[i], of[k]))

@@ -433,6 +433,25 @@ def test_global_azimuth_on_low_waves(slope, cross, sigma_v):
     assert np.mean(err) < 2.0 and np.mean(err > 5.0) < 0.02
 
 
+@pytest.mark.parametrize("bridge, turned_over", [(8, False), (0, True)])
+def test_global_azimuth_bridges_a_long_waves_wide_ridge(bridge, turned_over, monkeypatch):
+    """A low, long wave (1.5 periods over the image, slope 0.25) with noisy axes: about its
+    ridges and valleys the band where polarization says nothing is wider than the 8 px of the
+    second-order triples, so without the wider triples across such bands (``bridge``) a fifth
+    of the sheet is turned over at a valley; with them, under a tenth."""
+    import functools
+
+    import thinfilm.reconstruction.azimuth as azimuth
+
+    monkeypatch.setattr(azimuth, "coupling_matrix", functools.partial(azimuth.coupling_matrix, bridge=bridge))
+    normals, mask = _low_wave(0.25, False, periods=1.5)
+    err = min((_signs_error(truth, mask, sigma_v=0.008) for truth in (normals, normals * np.array([-1.0, -1.0, 1.0]))),
+              key=np.mean)
+    assert (np.mean(err > 5.0) > 0.15) == turned_over
+    if not turned_over:
+        assert np.mean(err) < 3.0 and np.mean(err > 5.0) < 0.1
+
+
 @pytest.mark.parametrize("rows", [1, 2])
 def test_global_azimuth_on_an_image_one_or_two_pixels_high(rows):
     """A strip across a lying cylinder, one or two pixels high (image gradients need three):
