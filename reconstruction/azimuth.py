@@ -490,9 +490,10 @@ def _minimise_regions(Jr, hr, tables, starts=256, passes=50):
     return C[int(np.argmin(energy(C)))]
 
 
-def _refine_cells(Jc, h, s, region_of, fixed, shape, rings, sweeps, rounds=3, block_px=4):
+def _refine_cells(Jc, h, s, nearest, fixed, shape, rings, sweeps, rounds=3, block_px=4):
     """Flip whole cells where that lowers the energy: a cell is a region, or the free pixels
-    of one ``block_px`` square nearest to one region, their signs as completed. The energy of
+    of one ``block_px`` square nearest to one region (``nearest``: each pixel's nearest
+    region), their signs as completed. The energy of
     flipping any union of cells is exactly an Ising energy over the cells (``-σᵀCσ/2 -
     hcᵀσ``, ``C`` the couplings between cells of the signed field ``s``), minimised by
     :func:`_minimise_regions`; the free pixels are then swept again. This weighs the groups
@@ -503,12 +504,10 @@ def _refine_cells(Jc, h, s, region_of, fixed, shape, rings, sweeps, rounds=3, bl
 
     n = s.size
     on = np.nonzero(s != 0)[0]
-    _, (ir, ic) = ndimage.distance_transform_edt(~fixed.reshape(shape), return_indices=True)
-    nearest = region_of[(ir * shape[1] + ic).ravel()]
     # free pixels: by nearest region and block of block_px x block_px
     rr, cc = np.divmod(on, shape[1])
     blocks = ((rr // block_px) * (shape[1] // block_px + 1) + cc // block_px).astype(np.int64)
-    key = np.where(fixed[on], nearest[on], (nearest[on] + 1) * (blocks.max() + 1) + blocks + region_of.max() + 1)
+    key = np.where(fixed[on], nearest[on], (nearest[on] + 1) * (blocks.max() + 1) + blocks + nearest.max() + 1)
     _, inv = np.unique(key, return_inverse=True)
     cell = np.zeros(n, dtype=np.int64)
     cell[on] = inv
@@ -564,6 +563,7 @@ def resolve_signs(J, h, label, orient, mask, weight, min_region_weight=0.002, sw
         np.fill_diagonal(Jr, 0.0)
         hr = P.T @ h
         tables, many = _gap_tables(Jc, h, region_of, orient, (m & ~fixed).reshape(H, W), colour, dist)
+        # each pixel's nearest region
         _, (ir, ic) = ndimage.distance_transform_edt(~fixed.reshape(H, W), return_indices=True)
         nearest = np.where(m, region_of[(ir * W + ic).ravel()], -1)
         pair_j, unary = _gap_couplings(Jc, h, region_of, orient, many, nearest, colour)
@@ -583,7 +583,7 @@ def resolve_signs(J, h, label, orient, mask, weight, min_region_weight=0.002, sw
     if rings is not None:
         s = _complete(rings, h, s, sweeps)
     if K:
-        s = _refine_cells(Jc, h, s, region_of, fixed, (H, W), rings, sweeps)
+        s = _refine_cells(Jc, h, s, nearest, fixed, (H, W), rings, sweeps)
     return np.where(m, s, 0.0)
 
 

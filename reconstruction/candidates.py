@@ -28,9 +28,16 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["choose_smooth"]
+__all__ = ["choose_smooth", "neighbour_penalty"]
 
 _MISSING = 1e9
+
+
+def neighbour_penalty(delta, sigma, truncation=8.0):
+    """The penalty of two neighbours whose thicknesses differ by ``delta``:
+    ``min((delta / sigma)² / 2, truncation)`` (a real jump costs no more than ``truncation``)."""
+    d = np.asarray(delta, dtype=np.float64) / sigma
+    return np.minimum(0.5 * d * d, truncation)
 
 
 def choose_smooth(values, costs, mask, sigma, truncation=8.0, iterations=25, damping=0.5):
@@ -87,8 +94,7 @@ def choose_smooth(values, costs, mask, sigma, truncation=8.0, iterations=25, dam
         j = np.full(m, -1, dtype=np.int64)
         j[ok] = index[rr[ok], cc[ok]]
         jj = np.maximum(j, 0)
-        d = (vals[sub][:, :, None] - vals[jj][:, None, :]) / sigma
-        V = np.minimum(0.5 * d * d, truncation)
+        V = neighbour_penalty(vals[sub][:, :, None] - vals[jj][:, None, :], sigma, truncation)
         V = np.where(missing[sub][:, :, None] | missing[jj][:, None, :], truncation, V)
         fixed = (j >= 0) & ~open_[jj]
         # a decided neighbour: the penalty against its chosen candidate

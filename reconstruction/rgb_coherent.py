@@ -61,10 +61,11 @@ OPEN_ORDERS_WARN = 0.80
 
 def _choose_basins(fit, cand_pix, cand, mask, sigma, thickness_sigma_nm, basin_nm=40.0, within_chi2=4.0):
     """Each pixel's candidate (thickness basin) chosen jointly with its neighbours'
-    (:func:`.candidates.choose_smooth`). Returns a :class:`~.rgb_invert.PixelFit` and the
+    (:func:`.candidates.choose_smooth`). Returns a :class:`~.rgb_invert.PixelFit`, the
     fraction of pixels at which a candidate of another basin (more than ``basin_nm`` away)
-    fits within ``within_chi2`` (in units of the noise) of the chosen one: the data leave
-    their order of interference open there."""
+    fits within ``within_chi2`` (in units of the noise) of the chosen one (the data leave
+    their order of interference open there), and the candidates' thicknesses and misfits
+    (N, K) in noise units (None where every pixel has one)."""
     from .candidates import choose_smooth
     from .rgb_invert import PixelFit
 
@@ -107,12 +108,12 @@ def _settle_orders(thickness, values, costs, mask, basin_nm=40.0, order_nm=(100.
     without one, the pixel moves with its patch by the median order and votes ``+cap``) and
     its vote the rival's misfit less its current one, capped at ``±cap`` (a pixel the model
     cannot explain cannot outvote the others). A patch moves where that smooths its edge
-    (the neighbour penalty of :func:`.candidates.choose_smooth` along it falls) and the
+    (the neighbour penalty of :func:`.candidates.neighbour_penalty` along it falls) and the
     votes plus that change sum below ``-margin`` and below minus three times the votes' own
     spread (their sum is noise otherwise), the best move first; then the patches are cut
-    again, for up to ``rounds`` moves. A patch without an edge (the whole object) never
-    moves: its pixels' votes alone do not decide an order (on random scenes they moved
-    right objects off by one). Patches of a wrong order in weak fringes, which a pixel's
+    again, for up to ``rounds`` moves. Neither a patch without an edge (the whole object)
+    nor one of half the object or more ever moves: their pixels' votes would decide the
+    object's order alone, and on random scenes they moved right objects off by one. Patches of a wrong order in weak fringes, which a pixel's
     neighbourhood cannot tell (a flat face all of one zenith), are thus decided by all of
     their pixels and their edges together.
 
@@ -120,6 +121,8 @@ def _settle_orders(thickness, values, costs, mask, basin_nm=40.0, order_nm=(100.
     """
     import scipy.sparse as sp
     from scipy.sparse.csgraph import connected_components
+
+    from .candidates import neighbour_penalty
 
     T = np.asarray(thickness, dtype=np.float64).copy()
     n = T.size
@@ -135,7 +138,7 @@ def _settle_orders(thickness, values, costs, mask, basin_nm=40.0, order_nm=(100.
     i0, i1 = np.concatenate(pairs).T
 
     def penalty(d):
-        return np.minimum(0.5 * (d / sigma_nm) ** 2, truncation)
+        return neighbour_penalty(d, sigma_nm, truncation)
 
     for _ in range(rounds):
         cur = np.min(np.where(np.abs(values - T[:, None]) <= basin_nm, costs, np.inf), axis=1)
