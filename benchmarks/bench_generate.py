@@ -31,7 +31,8 @@ def main(argv=None) -> int:
 
     from thinfilm.core.variants import use_variant
     from thinfilm.generators.generate import generate_dataset
-    from thinfilm.generators.render import passband_quadrature, render_stokes_cube
+    from thinfilm.core.bands import passband_quadrature
+    from thinfilm.generators.render import render_stokes_cube
     from thinfilm.generators.scene import build_scene_dict
     from thinfilm.generators.spec import load_spec
 

@@ -1,4 +1,6 @@
-"""What the two cameras of the rig record, from a rendered Stokes cube.
+"""What the two cameras of the rig record, from a rendered Stokes cube, with their noise.
+
+The noise-free captures are the observation model's (:func:`thinfilm.core.model.captures_from_stokes`).
 
 ``polarized_rgb``
     The polarization RGB camera: for each polarizer angle α the camera RGB
@@ -16,31 +18,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from thinfilm.core.colorimetry import camera_weights
-from thinfilm.core.conventions import malus_intensity, s_polarized, stokes_design_matrix
+from thinfilm.core.conventions import malus_intensity, stokes_design_matrix
 
 from .noise import apply_camera_noise
 
-__all__ = ["polarized_rgb_from_stokes", "captures_from_stokes", "hyperspectral_capture"]
-
-
-def polarized_rgb_from_stokes(stokes: dict, wavelengths_nm, polarizer_angles_deg, camera: str,
-                              illuminant: str) -> dict:
-    """Noise-free polarization-camera images: angle (int degrees) → (H, W, 3) linear,
-    white-balanced camera RGB of I(α) (:func:`thinfilm.core.colorimetry.camera_weights`)."""
-    wl = np.asarray(wavelengths_nm, dtype=np.float64)
-    w = camera_weights(wl, camera, illuminant)
-    rgb_stokes = [stokes[k] @ w for k in ("S0", "S1", "S2")]  # linear: RGB of each component
-    angles = list(polarizer_angles_deg)
-    images = malus_intensity(*rgb_stokes, angles)
-    return {int(round(a)) % 360: img for a, img in zip(angles, images)}
-
-
-def captures_from_stokes(stokes: dict, wavelengths_nm, polarizer_angles_deg, camera: str, illuminant: str):
-    """Noise-free captures of both cameras from a Stokes cube (``S0``, ``S1``, ``S2``: (H, W, B)
-    in reflectance units): ``(polarized_rgb, spectral_s)``."""
-    polarized = polarized_rgb_from_stokes(stokes, wavelengths_nm, polarizer_angles_deg, camera, illuminant)
-    return polarized, s_polarized(stokes["S0"], stokes["S1"], stokes["S2"])
+__all__ = ["hyperspectral_capture"]
 
 
 def hyperspectral_capture(stokes: dict, polarizer_angles_deg, mask, noise: dict, rngs) -> dict:

@@ -89,7 +89,9 @@ def simulate(spec, progress: bool = False) -> dict:
 
     from thinfilm.core.conventions import s_polarized
 
-    from .captures import captures_from_stokes, hyperspectral_capture
+    from thinfilm.core.model import captures_from_stokes
+
+    from .captures import hyperspectral_capture
     from .ground_truth import cast_ground_truth
     from .noise import apply_camera_noise
     from .render import render_stokes_cube, sample_blocks
@@ -150,7 +152,7 @@ def dataset_meta_of(spec, sim: dict) -> dict:
     """``meta.json`` of a simulated spec."""
     from thinfilm.core.io import dataset_meta
 
-    from .render import passband_quadrature
+    from thinfilm.core.bands import passband_quadrature
 
     rig = spec.rig
     sub, _ = passband_quadrature(sim["wavelengths_nm"], rig.band_fwhm_nm, rig.passband)

@@ -26,25 +26,9 @@ camera's is.
 
 Band integration
 ----------------
-Each band is the passband-weighted mean of renders at several sub-wavelengths
-(:func:`passband_quadrature`), not a point sample:
-
-``gaussian``
-    Sub-wavelengths on a uniform lattice of spacing ``h <= FWHM / 2`` that divides the band
-    step (so neighbouring bands share renders: 81 bands of 4 nm at FWHM 4 nm take 167
-    renders at 2 nm), out to 4 sigma, weights exp(-(λ - λ_b)² / 2σ²) normalised per band.
-    The lattice sum of a Gaussian-windowed spectrum differs from the integral by the
-    aliasing term exp(-σ²(2π/h - a)²/2) with a = dφ/dλ the film's phase rate (below
-    0.2 rad/nm for films under 1 µm): under 1e-5 at h = FWHM/2; the 4-sigma cut removes
-    6e-5 of the weight before renormalisation.
-``box``
-    Midpoint rule with ``ceil(FWHM / 1 nm)`` equal-weight sub-wavelengths per band: error
-    below (a h)² / 24 of the oscillating part (≈ 2e-4 for a = 0.075 rad/nm, h = 1 nm).
-
-``band_fwhm_nm = 0`` point-samples the band centres.
-
-Against point sampling, band integration damps the thin-film fringes by about
-exp(-(a σ)²/2): 0.8 % of the fringe amplitude for 400 nm of MgF2 at 400 nm, FWHM 4 nm.
+Each band is the passband-weighted mean of renders at several sub-wavelengths, by the one
+quadrature of :func:`thinfilm.core.bands.passband_quadrature` (which the observation model,
+:mod:`thinfilm.core.model`, uses too).
 """
 
 from __future__ import annotations
@@ -53,21 +37,18 @@ import math
 
 import numpy as np
 
+from thinfilm.core.bands import passband_quadrature
+
 __all__ = [
-    "passband_quadrature",
     "require_render_variant",
     "render_stokes_cube",
     "render_seeds",
     "sample_blocks",
-    "GAUSSIAN_TRUNCATION_SIGMA",
-    "BOX_SUBSTEP_NM",
     "ROUGH_SAMPLER",
     "BSDF_SAMPLING_INTEGRATOR",
     "MAX_LANES",
 ]
 
-GAUSSIAN_TRUNCATION_SIGMA = 4.0
-BOX_SUBSTEP_NM = 1.0
 #: sampler of the many-sample path: blocks of a power of 4 samples (:func:`sample_blocks`)
 ROUGH_SAMPLER = "ldsampler"
 #: nested integrator of the many-sample path for objects that cannot reflect light onto
@@ -79,58 +60,6 @@ BSDF_SAMPLING_INTEGRATOR = {"type": "direct", "emitter_samples": 0, "bsdf_sample
                             "hide_emitters": True}
 #: samples traced per kernel launch (rows of the image are rendered in groups of at most this)
 MAX_LANES = 1 << 21
-_FWHM_TO_SIGMA = 1.0 / (2.0 * math.sqrt(2.0 * math.log(2.0)))
-
-
-def passband_quadrature(wavelengths_nm, band_fwhm_nm: float, passband: str = "gaussian"):
-    """Sub-wavelengths and weights that integrate each band over its passband.
-
-    Parameters
-    ----------
-    wavelengths_nm : array (B,)
-        Band centres, increasing.
-    band_fwhm_nm : float
-        Full width at half maximum (gaussian) or full width (box); 0 point-samples.
-    passband : {"gaussian", "box"}
-
-    Returns
-    -------
-    sub_nm : ndarray (K,)
-        Sub-wavelengths to render, increasing.
-    weights : ndarray (B, K)
-        Non-negative, each row sums to 1: band b = Σ_k weights[b, k] · image(sub_nm[k]).
-    """
-    wl = np.asarray(wavelengths_nm, dtype=np.float64)
-    if wl.ndim != 1 or wl.size == 0 or np.any(np.diff(wl) <= 0):
-        raise ValueError("wavelengths_nm must be a non-empty increasing 1-D array")
-    if band_fwhm_nm < 0:
-        raise ValueError("band_fwhm_nm must be >= 0")
-    if band_fwhm_nm == 0:
-        return wl.copy(), np.eye(wl.size)
-    if passband == "gaussian":
-        sigma = band_fwhm_nm * _FWHM_TO_SIGMA
-        h = 0.5 * band_fwhm_nm
-        steps = np.diff(wl)
-        if steps.size and np.allclose(steps, steps[0], rtol=0, atol=1e-9 * max(1.0, steps[0])):
-            h = steps[0] / math.ceil(steps[0] / h - 1e-9)
-        reach = GAUSSIAN_TRUNCATION_SIGMA * sigma
-        j_lo = math.floor((wl[0] - reach - wl[0]) / h + 1e-9)
-        j_hi = math.ceil((wl[-1] + reach - wl[0]) / h - 1e-9)
-        lattice = wl[0] + h * np.arange(j_lo, j_hi + 1)
-        d = lattice[None, :] - wl[:, None]
-        weights = np.where(np.abs(d) <= reach * (1 + 1e-9), np.exp(-0.5 * (d / sigma) ** 2), 0.0)
-        used = weights.sum(axis=0) > 0
-        sub, weights = lattice[used], weights[:, used]
-    elif passband == "box":
-        n = max(1, math.ceil(band_fwhm_nm / BOX_SUBSTEP_NM - 1e-9))
-        offsets = band_fwhm_nm * ((np.arange(n) + 0.5) / n - 0.5)
-        points = (wl[:, None] + offsets[None, :]).ravel()
-        sub, inverse = np.unique(np.round(points, 9), return_inverse=True)
-        weights = np.zeros((wl.size, sub.size))
-        np.add.at(weights, (np.repeat(np.arange(wl.size), n), inverse.ravel()), 1.0 / n)
-    else:
-        raise ValueError(f"passband must be 'gaussian' or 'box', got {passband!r}")
-    return sub, weights / weights.sum(axis=1, keepdims=True)
 
 
 def require_render_variant():
@@ -182,7 +111,7 @@ def render_stokes_cube(scene, wavelengths_nm, band_fwhm_nm: float, passband: str
     wavelengths_nm : array (B,)
         Band centres.
     band_fwhm_nm : float
-        Passband width (see :func:`passband_quadrature`).
+        Passband width (see :func:`thinfilm.core.bands.passband_quadrature`).
     passband : {"gaussian", "box"}
     progress : bool
         tqdm progress bar on stderr (shown only on a terminal).

@@ -14,7 +14,7 @@
 How ``raw.tiff`` is made (:func:`dofp_raw`):
 
 1. The exact, noise-free camera RGB of the rendered Stokes cube behind each of the pattern's
-   polarizers (:func:`.captures.polarized_rgb_from_stokes`), sampled by the pattern
+   polarizers (:func:`thinfilm.core.model.polarized_rgb_from_stokes`), sampled by the pattern
    (:func:`thinfilm.core.mosaic.mosaic_from_images`).
 2. Undone white balance: a raw channel's response is its sensitivity times the illuminant
    summed over the bands (:func:`raw_channel_response`, relative to the strongest channel),
@@ -85,7 +85,7 @@ def dofp_raw(stokes: dict, wavelengths_nm, camera: str, illuminant: str, mask, n
     """
     from thinfilm.core.mosaic import DEFAULT_PATTERN, mosaic_from_images, parse_pattern
 
-    from .captures import polarized_rgb_from_stokes
+    from thinfilm.core.model import polarized_rgb_from_stokes
     from .noise import digitize
 
     pattern = pattern or parse_pattern(DEFAULT_PATTERN)

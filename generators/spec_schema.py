@@ -457,7 +457,7 @@ def resolve(raw: dict, c: "Checker") -> dict:
 
 def _renders_per_image(rig: dict) -> int:
     """How many sub-wavelengths the passband quadrature renders for all bands together
-    (:func:`thinfilm.generators.render.passband_quadrature`), counted without building it."""
+    (:func:`thinfilm.core.bands.passband_quadrature`), counted without building it."""
     w = rig["wavelengths_nm"]
     bands = int(math.floor((w["stop"] - w["start"]) / w["step"] + 1e-9)) + 1
     fwhm = rig["band_fwhm_nm"]

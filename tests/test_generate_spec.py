@@ -202,7 +202,7 @@ def test_unreadable_mesh_fails_cleanly(tmp_path, capsys):
 @pytest.mark.parametrize("a", [0.0, 0.02, 0.075, 0.15, 0.3])
 def test_gaussian_passband_quadrature_integrates_fringes(a):
     """Gaussian-weighted mean of cos(a lambda) has the closed form cos(a c) exp(-(a sigma)^2/2)."""
-    from thinfilm.generators.render import passband_quadrature
+    from thinfilm.core.bands import passband_quadrature
 
     wl = np.arange(400.0, 721.0, 4.0)
     fwhm = 4.0
@@ -217,7 +217,7 @@ def test_gaussian_passband_quadrature_integrates_fringes(a):
 
 @pytest.mark.parametrize("a", [0.02, 0.075, 0.15])
 def test_box_passband_quadrature_integrates_fringes(a):
-    from thinfilm.generators.render import passband_quadrature
+    from thinfilm.core.bands import passband_quadrature
 
     wl = np.arange(400.0, 721.0, 4.0)
     width = 4.0
@@ -228,7 +228,7 @@ def test_box_passband_quadrature_integrates_fringes(a):
 
 
 def test_zero_fwhm_point_samples():
-    from thinfilm.generators.render import passband_quadrature
+    from thinfilm.core.bands import passband_quadrature
 
     wl = np.array([400.0, 500.0, 600.0])
     sub, w = passband_quadrature(wl, 0.0)

@@ -16,7 +16,7 @@
    model has none either).
 2. The re-rendered Stokes cube becomes the same captures the dataset holds: s-polarized
    spectra ``S0 + sqrt(S1² + S2²)`` and polarized camera RGB
-   (:func:`thinfilm.generators.render.captures_from_stokes`).
+   (:func:`thinfilm.core.model.captures_from_stokes`).
 3. Errors per pixel over the object mask (ground-truth mask ∧ estimate ``valid``):
    normal angle, zenith, thickness; ΔE*ab (CIE 1976, paper Eq. 31) and ΔE00 between the
    captured and re-rendered s-polarized appearance, in CIELAB from spectra
@@ -224,9 +224,9 @@ def rerender_estimate(meta: dict, estimate, film, progress=False) -> dict:
     (``meta.json``: bands, passband, dome, polarizer angles, camera, illuminant, the film's
     roughness, at most :data:`RERENDER_MAX_SPP` samples per pixel; no noise):
     returns the Stokes cube and the noise-free captures ``spectral_s`` (H, W, B) and
-    ``polarized_rgb`` {angle: (H, W, 3)} (:func:`thinfilm.generators.captures.captures_from_stokes`)."""
+    ``polarized_rgb`` {angle: (H, W, 3)} (:func:`thinfilm.core.model.captures_from_stokes`)."""
     from thinfilm.core.colorimetry import DEFAULT_CAMERA, DEFAULT_ILLUMINANT
-    from thinfilm.generators.captures import captures_from_stokes
+    from thinfilm.core.model import captures_from_stokes
 
     wl = np.asarray(meta["wavelengths_nm"], dtype=np.float64)
     stokes = render_normal_map(
