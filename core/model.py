@@ -463,6 +463,9 @@ class ObservationModel:
         self._n = [layer.n_k(lam) for layer in film.layers]
         self._sub = film.substrate_n_k(lam)
         self._ext = float(film.ext_ior)
+        # lossless media of indices at least the exterior's: real normal components (half the
+        # kernel's arithmetic); index offsets must then keep every index there
+        self.lossless = bool(all(not np.any(k) and np.min(n) >= self._ext for n, k in [*self._n, self._sub]))
         self._t = None
 
     # -- Dr.Jit --------------------------------------------------------------------------------
@@ -472,9 +475,18 @@ class ObservationModel:
         if self._t is None:
             t = _Types(self.backend, self.precision)
             t.lam = t.upload(self.sub_nm)
-            t.n = [(t.upload(n), None if not np.any(k) else t.upload(k)) for n, k in self._n]
-            n3, k3 = self._sub
-            t.sub = (t.upload(n3), None if not np.any(k3) else t.upload(k3))
+            # a table per layer, or one opaque value where the index does not vary over the
+            # sub-wavelengths: the kernel then computes its interfaces once per lane, not per band
+            def table(v):
+                v = np.asarray(v, dtype=np.float64)
+                if not np.any(v):
+                    return None
+                if np.all(v == v[0]):
+                    return t.dr.opaque(t.Float, float(v[0]))
+                return t.upload(v)
+
+            t.n = [(table(n), table(k)) for n, k in self._n]
+            t.sub = tuple(table(v) for v in self._sub)
             # each band's weights, padded to the longest window: gathered by band * width + j
             width = int(np.max(np.diff(self.windows, axis=1)))
             idx = self.windows[:, :1] + np.arange(width)[None, :]
@@ -496,15 +508,18 @@ class ObservationModel:
         dr, Float = t.dr, t.Float
         lam = dr.gather(Float, t.lam, k)
         layers = []
+        def at(tab):
+            if tab is None:
+                return 0.0
+            return tab if dr.width(tab) == 1 else dr.gather(Float, tab, k)
+
         for i, (n_tab, k_tab) in enumerate(t.n):
-            n = dr.gather(Float, n_tab, k)
+            n = at(n_tab)
             if i < len(state.index_offset):
                 n = n + state.index_offset[i]
-            kk = 0.0 if k_tab is None else dr.gather(Float, k_tab, k)
-            layers.append((n, kk, state.thickness_nm[i]))
-        n3 = dr.gather(Float, t.sub[0], k)
-        k3 = 0.0 if t.sub[1] is None else dr.gather(Float, t.sub[1], k)
-        r_s, r_p = optics.stack_amplitudes(state.cos_i, lam, layers, n3, k3, self._ext)
+            layers.append((n, at(k_tab), state.thickness_nm[i]))
+        n3, k3 = at(t.sub[0]), at(t.sub[1])
+        r_s, r_p = optics.stack_amplitudes(state.cos_i, lam, layers, n3, k3, self._ext, lossless=self.lossless)
         Rs, Rp = r_s.abs2(), r_p.abs2()
         a = 0.5 * (Rs + Rp) * state.light
         b = 0.5 * (Rs - Rp) * state.light
@@ -911,11 +926,18 @@ class Observations:
         """The rows uploaded once per backend and precision."""
         key = (t.Float.__module__, t.Float.__name__)
         if key not in self._device:
-            dev = {"data": [t.upload(a) for a in self.arrays], "w": [t.upload(w) for w in self.wts]}
+            # weights that are the same over a row are read once per lane, not once per value
+            per_row = [bool(np.all(w == w[:, :1])) for w in self.wts]
+            dev = {"data": [t.upload(a) for a in self.arrays],
+                   "w": [t.upload(w[:, 0] if r else w) for w, r in zip(self.wts, per_row)], "per_row": per_row}
             if self.bias is not None:
                 dev["bias2"] = t.upload((0.5 * np.pi) * self.bias ** 2)
             self._device[key] = dev
         return self._device[key]
+
+    @staticmethod
+    def _weight(dev, m, row, j, dr, Float):
+        return dr.gather(Float, dev["w"][m], row if dev["per_row"][m] else j)
 
     def residuals_band(self, vals, tans, row, b, dev, dr, Float):
         """Residuals and Jacobian rows of band ``b`` from the band's predicted Stokes values and
@@ -924,7 +946,7 @@ class Observations:
         if self.kind == "stokes":
             r, J = [], [[] for _ in tans]
             for m in range(3):
-                w = dr.gather(Float, dev["w"][m], j)
+                w = self._weight(dev, m, row, j, dr, Float)
                 r.append(w * (dr.gather(Float, dev["data"][m], j) - vals[m]))
                 for p, tp in enumerate(tans):
                     J[p].append(-w * tp[m])
@@ -932,7 +954,7 @@ class Observations:
         if self.kind == "sp":
             r, J = [], [[] for _ in tans]
             for m, sign in ((0, 1.0), (1, -1.0)):
-                w = dr.gather(Float, dev["w"][m], j)
+                w = self._weight(dev, m, row, j, dr, Float)
                 r.append(w * (dr.gather(Float, dev["data"][m], j) - (vals[0] + sign * vals[1])))
                 for p, tp in enumerate(tans):
                     J[p].append(-w * (tp[0] + sign * tp[1]))
@@ -943,7 +965,7 @@ class Observations:
             lin2 = lin2 + dr.gather(Float, dev["bias2"], row)
         lin = dr.sqrt(lin2)
         inv = dr.select(lin > 0, 1.0 / dr.select(lin > 0, lin, 1.0), 0.0)
-        w = dr.gather(Float, dev["w"][0], j)
+        w = self._weight(dev, 0, row, j, dr, Float)
         r = [w * (dr.gather(Float, dev["data"][0], j) - (s0 + lin))]
         J = [[-w * (tp[0] + (s1 * tp[1] + s2 * tp[2]) * inv)] for tp in tans]
         return r, J
@@ -959,7 +981,7 @@ class Observations:
             ca, sa = 0.5 * math.cos(2 * alpha), 0.5 * math.sin(2 * alpha)
             for c in range(3):
                 j = row * self.width + ai * 3 + c
-                w = dr.gather(Float, dev["w"][0], j)
+                w = self._weight(dev, 0, row, j, dr, Float)
                 pred = 0.5 * vals[c] + ca * vals[3 + c] + sa * vals[6 + c]
                 r.append(w * (dr.gather(Float, dev["data"][0], j) - pred))
                 for p in range(P):

@@ -78,7 +78,7 @@ def levenberg_marquardt(x0, normal_equations, iterations: int, *, project=None, 
     iterations : maximum number of iterations.
     project : callable ``x -> x`` putting trial points back in the domain (in place allowed).
     max_step : (P,) largest step per parameter (steps are clipped), or None.
-    step_tol : (P,) a pixel stops once an accepted step is below this in every parameter.
+    step_tol : (P,) a pixel stops once a step (accepted or not) is below this in every parameter.
     rel_tol : a pixel stops once an accepted step lowers its cost by less than this fraction.
     lam0, lam_down, lam_up, lam_min, lam_max : damping start, factors on success and failure,
         lower bound; a pixel whose damping exceeds ``lam_max`` stops.
@@ -122,7 +122,9 @@ def levenberg_marquardt(x0, normal_equations, iterations: int, *, project=None, 
         lam[worse] *= lam_up
         done = np.zeros(N, dtype=bool)
         if step_tol is not None:
-            done[ib] = np.all(np.abs(step[better]) < step_tol, axis=1)
+            # a step below the tolerance ends the pixel whether or not it lowered the cost: at
+            # that point the cost's own rounding (single-precision kernels) decides, not the model
+            done[idx] = np.all(np.abs(step) < step_tol, axis=1)
         if rel_tol > 0:
             done[ib] |= rel < rel_tol
         done[idx] |= lam[idx] >= lam_max

@@ -37,7 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import gaussian_filter1d, maximum_filter1d, minimum_filter1d
 
-__all__ = ["PeakResult", "find_peaks", "PEAK_OK", "PEAK_SEVERAL", "PEAK_NONE"]
+__all__ = ["PeakResult", "find_peaks", "band_noise", "PEAK_OK", "PEAK_SEVERAL", "PEAK_NONE"]
 
 #: exactly one constructive-interference peak inside the measured range
 PEAK_OK = 0
@@ -79,7 +79,7 @@ class PeakResult:
     noise: np.ndarray
 
 
-def _band_noise(spectra):
+def band_noise(spectra):
     """Robust per-spectrum noise of one band: the median absolute second difference (about
     zero: a smooth spectrum's own second differences are far smaller than the noise's)
     × 1.4826 / sqrt(6)."""
@@ -125,7 +125,7 @@ def find_peaks(spectra, wavelengths_nm, smooth_nm=8.0, window_nm=20.0, fit_nm=24
     step = float(np.median(np.diff(wl)))
     sigma_b = smooth_nm / step
     S = gaussian_filter1d(R, sigma_b, axis=1, mode="nearest") if sigma_b > 0 else R
-    noise = _band_noise(R)
+    noise = band_noise(R)
     # noise left after smoothing (white noise through a unit-area Gaussian of sigma_b bands)
     smooth_noise = noise / np.sqrt(max(1.0, 2.0 * np.sqrt(np.pi) * sigma_b))
 

@@ -373,9 +373,9 @@ def estimate_film_ior_either_side(spectra, wavelengths_nm, substrate_ior, max_pi
         if 1.0 < n2_m < substrate_ior - 1e-3 and abs(n2_m - n2_fit) > 0.02:
             d_m = d0[ok] * n2_fit / n2_m
             n2_mf, _, _, sse_m = _joint_film_ior(S[ok], t[ok], d_m, n2_m, substrate_ior, wl, bounds=bounds)
-            from .peaks import _band_noise
+            from .peaks import band_noise
 
-            sigma2 = float(np.median(_band_noise(S[ok, :b]))) ** 2
+            sigma2 = float(np.median(band_noise(S[ok, :b]))) ** 2
             indistinct = abs(sse_m - sse) < max(10.0 * sigma2, 0.02 * min(sse, sse_m))
             mirrored = {"film_ior": float(n2_mf), "sse_ratio": float(sse_m / max(sse, 1e-300))}
             if (sse_m < sse and not indistinct) or (indistinct and n2_mf > n2_fit):

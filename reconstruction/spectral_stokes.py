@@ -2,20 +2,18 @@
 
 A specular pixel of zenith θ and azimuth φ (orthographic camera) reflects the unpolarized
 dome as ``S0 = (R_s + R_p)/2``, ``(S1, S2) = -P (cos 2φ, sin 2φ)`` with ``P = (R_s - R_p)/2``
-(:func:`thinfilm.core.conventions.specular_stokes`) at every band, ``R_s`` and ``R_p`` from
-the optics core. The unknowns of a pixel are carried as ``x = (v1, v2, d)`` with
-``(v1, v2) = u (cos 2φ, sin 2φ)`` and ``u = sin² θ``: then ``(S1, S2) = -Q(u, d) (v1, v2)``
-with ``Q = P / u``, smooth through normal incidence, where φ is undefined (the
-parameterization of the polarized-RGB inversion, :mod:`.rgb_invert`). The angle of
-polarization fixes φ modulo 180°, and the s and p spectra together fix θ at every pixel:
-with the film index known, each pixel's zenith, azimuth axis and thickness come from one
-least-squares fit to all 3 B values.
+(:func:`thinfilm.core.conventions.specular_stokes`) at every band. The unknowns of a pixel are
+carried as ``x = (v1, v2, d)`` with ``(v1, v2) = u (cos 2φ, sin 2φ)`` and ``u = sin² θ``: then
+``(S1, S2) = -Q(u, d) (v1, v2)`` with ``Q = P / u``, smooth through normal incidence, where φ
+is undefined (the observation model's ``double_angle`` parametrization,
+:data:`thinfilm.core.model.PARAMETRIZATIONS`). The angle of polarization fixes φ modulo
+180°, and the s and p spectra together fix θ at every pixel: with the film index known, each
+pixel's zenith, azimuth axis and thickness come from one least-squares fit to all 3 B values.
 
-:func:`stokes_normal_equations` evaluates the model and its Gauss-Newton normal equations
-for many pixels at once: on Dr.Jit's LLVM backend one fused kernel over pixels × bands
-(forward-mode derivatives, sums over bands in the kernel), else on NumPy by central
-differences. :func:`fit_stokes_pixels` runs the batched Levenberg-Marquardt of :mod:`.lm`
-on it.
+The model and its Gauss-Newton normal equations are the observation model's
+(:meth:`thinfilm.core.model.ObservationModel.normal_equations`: one kernel over pixels,
+looping over the bands, the Jacobian by forward-mode AD); :func:`fit_stokes_pixels` runs the
+batched Levenberg-Marquardt of :mod:`.lm` on it.
 
 The noise of the Stokes fit of a four-angle rotating polarizer (0, 45, 90, 135°) is
 ``σ(S1) = σ(S2) = √2 σ(S0)``; the residuals are weighted accordingly (``w1 = w0 / √2``).
@@ -25,18 +23,18 @@ from __future__ import annotations
 
 import numpy as np
 
-from thinfilm.bsdf import optics
+from thinfilm.core.model import Observations
 
 from .lm import levenberg_marquardt
-from .peaks import _band_noise
-from .spectral_model import airy_coefficients, use_drjit
+from .peaks import band_noise
+from .spectral_model import model_for
 
-__all__ = ["U_MAX", "stokes_model", "stokes_normal_equations", "fit_stokes_pixels", "axis_from_stokes",
-           "x_to_angles", "angles_to_x"]
+__all__ = ["U_MAX", "stokes_model", "StokesData", "stokes_normal_equations", "fit_stokes_pixels",
+           "axis_from_stokes", "x_to_angles", "angles_to_x", "normal_information", "reconstruct_stokes"]
 
 #: largest ``u = sin² θ`` a fit may reach (θ = 89.5°)
 U_MAX = float(np.sin(np.radians(89.5)) ** 2)
-_U_EPS = 1e-9
+_N2_REF = 1.0
 
 
 def angles_to_x(theta_rad, phi_rad, thickness_nm):
@@ -76,48 +74,44 @@ def axis_from_stokes(S1, S2, weights=None):
 
 
 def stokes_model(u, thickness_nm, film_ior, substrate_ior, wavelengths_nm):
-    """``S0`` and ``Q = P / u`` (N, B) of pixels with ``u = sin² θ`` and thickness (N,), by
-    the optics core (NumPy)."""
+    """``S0`` and ``Q = P / u`` (N, B) of pixels with ``u = sin² θ`` and thickness (N,), by the
+    observation model (``wavelengths_nm``: band centres or a :class:`~thinfilm.core.model.Rig`)."""
     u = np.clip(np.asarray(u, dtype=np.float64), 0.0, 1.0)
-    c = np.sqrt(1.0 - u)[:, None]
-    n2 = np.broadcast_to(np.asarray(film_ior, dtype=np.float64), u.shape)[:, None]
-    Rs, Rp = optics.reflectances(c, np.asarray(wavelengths_nm, dtype=np.float64)[None, :],
-                                 np.asarray(thickness_nm, dtype=np.float64)[:, None], n2, substrate_ior)
-    return 0.5 * (Rs + Rp), 0.5 * (Rs - Rp) / np.maximum(u, _U_EPS)[:, None]
+    d = np.asarray(thickness_nm, dtype=np.float64)
+    n2 = np.broadcast_to(np.asarray(film_ior, dtype=np.float64), u.shape)
+    model = model_for(wavelengths_nm, substrate_ior, d, n2)
+    b = len(model.rig.wavelengths_nm)
+    # azimuth 90°: (v1, v2) = (-u, 0), so S1 = -Q v1 = Q u
+    x = np.stack([-u, np.zeros_like(u), d, n2 - _N2_REF], axis=1)
+    s = model.evaluate("stokes", x, "double_angle")
+    return s[:, :b], s[:, b:2 * b] / np.maximum(u, 1e-9)[:, None]
 
 
 class StokesData:
     """Measured Stokes spectra of N pixels, with their residual weights, ready for repeated
-    evaluations of the normal equations (on Dr.Jit they are uploaded once).
+    evaluations of the normal equations (uploaded to the model's kernels once).
 
     Parameters
     ----------
     S0, S1, S2 : (N, B) measured Stokes spectra.
-    wavelengths_nm : (B,).
+    wavelengths_nm : (B,) band centres, or the dataset's :class:`~thinfilm.core.model.Rig`.
     w0, w1 : float or (N,) residual weights (``w1`` defaults to ``w0 / √2``).
     """
 
     def __init__(self, S0, S1, S2, wavelengths_nm, w0=1.0, w1=None):
-        self.S = [np.ascontiguousarray(a, dtype=np.float64) for a in (S0, S1, S2)]
-        n, b = self.S[0].shape
+        S = [np.ascontiguousarray(a, dtype=np.float64) for a in (S0, S1, S2)]
+        n, b = S[0].shape
         self.n, self.b = n, b
-        self.wl = np.asarray(wavelengths_nm, dtype=np.float64)
+        self.wavelengths_nm = wavelengths_nm
         self.w0 = np.broadcast_to(np.asarray(w0, dtype=np.float64), (n,)).copy()
         self.w1 = self.w0 / np.sqrt(2.0) if w1 is None else np.broadcast_to(np.asarray(w1, dtype=np.float64), (n,)).copy()
-        self._device = None
+        self.observations = Observations("stokes", S, (self.w0, self.w1))
 
-    def device(self):
-        """The observations as flat Dr.Jit arrays (uploaded on first use)."""
-        if self._device is None:
-            from drjit.llvm import Float64
-
-            self._device = [Float64(a.ravel()) for a in self.S]
-        return self._device
-
-    def normal_equations(self, x, idx, film_ior, substrate_ior):
+    def normal_equations(self, x, idx, film_ior, substrate_ior, model=None):
         """Gauss-Newton normal equations at ``x`` (n, 3) of the pixels ``idx`` (n,).
 
-        Residuals per band: ``w0 (S0 - S0(u, d))``, ``w1 (S1 + Q v1)``, ``w1 (S2 + Q v2)``.
+        Residuals per band: ``w0 (S0 - S0(u, d))``, ``w1 (S1 - S1(v, d))``, ``w1 (S2 - S2(v, d))``.
+        ``model``: the observation model to use (default: chosen for the thicknesses of ``x``).
 
         Returns
         -------
@@ -127,15 +121,10 @@ class StokesData:
         x = np.asarray(x, dtype=np.float64)
         idx = np.asarray(idx)
         n2 = np.broadcast_to(np.asarray(film_ior, dtype=np.float64), (idx.size,))
-        if use_drjit(idx.size * self.b, minimum=1 << 14):
-            sums = _dr_airy_neq(self, x, idx, n2, float(substrate_ior))
-        else:
-            sums = _np_airy_neq([a[idx] for a in self.S], x, n2, float(substrate_ior), self.wl, self.w0[idx],
-                                self.w1[idx])
-        h00, h01, h02, h11, h12, h22, g0, g1, g2, c = sums
-        H = np.stack([np.stack([h00, h01, h02], -1), np.stack([h01, h11, h12], -1),
-                      np.stack([h02, h12, h22], -1)], -2)
-        return H, np.stack([g0, g1, g2], -1), c
+        if model is None:
+            model = model_for(self.wavelengths_nm, substrate_ior, x[:, 2], n2)
+        return model.normal_equations(self.observations, x, "double_angle",
+                                      {"index_offset.0": n2 - _N2_REF}, rows=idx)
 
 
 def stokes_normal_equations(S0, S1, S2, x, film_ior, substrate_ior, wavelengths_nm, w0=1.0, w1=None):
@@ -143,130 +132,6 @@ def stokes_normal_equations(S0, S1, S2, x, film_ior, substrate_ior, wavelengths_
     (:meth:`StokesData.normal_equations` of all of them)."""
     data = StokesData(S0, S1, S2, wavelengths_nm, w0, w1)
     return data.normal_equations(x, np.arange(data.n), film_ior, substrate_ior)
-
-
-def _residual_parts(O0, O1, O2, S0m, Q, S0u, Qu, S0d, Qd, V1, V2, E1, E2, w0, w1):
-    """Residuals and their Jacobian rows (backend-generic): returns (r0, r1, r2) and the
-    three rows (∂r/∂v1, ∂r/∂v2, ∂r/∂d) of each."""
-    r0 = w0 * (O0 - S0m)
-    r1 = w1 * (O1 + Q * V1)
-    r2 = w1 * (O2 + Q * V2)
-    J0 = (-w0 * S0u * E1, -w0 * S0u * E2, -w0 * S0d)
-    J1 = (w1 * (Q + Qu * E1 * V1), w1 * (Qu * E2 * V1), w1 * (Qd * V1))
-    J2 = (w1 * (Qu * E1 * V2), w1 * (Q + Qu * E2 * V2), w1 * (Qd * V2))
-    return (r0, r1, r2), (J0, J1, J2)
-
-
-def _products(r, J):
-    """The 10 band terms of the normal equations: H (upper triangle), g, cost."""
-    out = []
-    for a, c in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)):
-        out.append(sum(Jk[a] * Jk[c] for Jk in J))
-    for a in range(3):
-        out.append(sum(Jk[a] * rk for Jk, rk in zip(J, r)))
-    out.append(sum(rk * rk for rk in r))
-    return out
-
-
-def _airy_lanes(C, D, K, ops):
-    """Band values of ``S0``, ``Q`` and their derivatives in ``u`` and ``d`` from the
-    per-pixel Airy coefficients ``C`` (broadcast to the bands), thickness ``D`` and
-    ``K = 4π / λ`` (backend-generic: NumPy or Dr.Jit)."""
-    phase = K * D * C["q2"]
-    c, s_ = ops.cos(phase), ops.sin(phase)
-    dphase_u = K * D * C["q2_u"]
-    dphase_d = K * C["q2"]
-    out = {}
-    for pol in ("s", "p"):
-        a, e = C["a_" + pol], C["e_" + pol]
-        den = 1.0 / (1.0 + e * c)
-        R = (a + e * c) * den
-        dR_dc = e * (1.0 - a) * den * den
-        R_u = C["a_" + pol + "_u"] * den + C["e_" + pol + "_u"] * c * (1.0 - a) * den * den - dR_dc * s_ * dphase_u
-        R_d = -dR_dc * s_ * dphase_d
-        out[pol] = (R, R_u, R_d)
-    (Rs, Rs_u, Rs_d), (Rp, Rp_u, Rp_d) = out["s"], out["p"]
-    inv_u = 1.0 / C["u"]
-    S0m, S0u, S0d = 0.5 * (Rs + Rp), 0.5 * (Rs_u + Rp_u), 0.5 * (Rs_d + Rp_d)
-    Q = 0.5 * (Rs - Rp) * inv_u
-    Qu = (0.5 * (Rs_u - Rp_u) - Q) * inv_u
-    Qd = 0.5 * (Rs_d - Rp_d) * inv_u
-    return S0m, Q, S0u, Qu, S0d, Qd
-
-
-def _pixel_terms(x, n2, n3):
-    u = np.hypot(x[:, 0], x[:, 1])
-    uc = np.clip(u, _U_EPS, 1.0)
-    if n2.size and np.all(n2 == n2[0]):
-        n2 = float(n2[0])                     # one film index: its tabulated coefficients
-    C = airy_coefficients(uc, n2, n3, derivatives=True)
-    C["u"] = uc
-    us = np.where(u > _U_EPS, u, 1.0)
-    E1 = np.where(u > _U_EPS, x[:, 0] / us, 0.0)
-    E2 = np.where(u > _U_EPS, x[:, 1] / us, 0.0)
-    return C, E1, E2
-
-
-def _np_airy_neq(O, x, n2, n3, wl, w0, w1):
-    C, E1, E2 = _pixel_terms(x, n2, n3)
-    Cb = {k: v[:, None] for k, v in C.items()}
-    S0m, Q, S0u, Qu, S0d, Qd = _airy_lanes(Cb, x[:, 2:3], (4.0 * np.pi / wl)[None, :], _NP_OPS)
-    r, J = _residual_parts(O[0], O[1], O[2], S0m, Q, S0u, Qu, S0d, Qd, x[:, :1], x[:, 1:2], E1[:, None], E2[:, None],
-                           w0[:, None], w1[:, None])
-    return [np.sum(t, axis=1) for t in _products(r, J)]
-
-
-def _dr_airy_neq(data, x, idx, n2, n3):
-    """The normal equations on Dr.Jit: one kernel with one lane per pixel, which evaluates the
-    pixel's Airy coefficients through the optics core, then loops over the bands summing the
-    10 terms (nothing per band is stored)."""
-    import drjit as dr
-    from drjit.llvm import Float64, UInt32
-
-    from .spectral_model import airy_coefficients_exact
-
-    b, m = data.b, idx.size
-    # the per-pixel inputs in one upload, read by gathers: a kernel that loaded NumPy's
-    # buffers directly would depend on their alignment, and Dr.Jit would compile it anew
-    cols = np.stack([x[:, 0], x[:, 1], x[:, 2], n2, data.w0[idx], data.w1[idx],
-                     np.asarray(idx, dtype=np.float64) * b], axis=1)
-    flat = Float64(np.ascontiguousarray(cols, dtype=np.float64).ravel())
-    lane = dr.arange(UInt32, m) * cols.shape[1]
-    v1, v2, d, N2, w0, w1, row = (dr.gather(Float64, flat, lane + k) for k in range(cols.shape[1]))
-    first = UInt32(row)
-    u = dr.sqrt(v1 * v1 + v2 * v2)
-    pos = u > _U_EPS
-    uc = dr.minimum(dr.maximum(u, _U_EPS), 1.0)
-    # the substrate's index as an opaque value: the kernel (cached by Dr.Jit) is the same
-    # for every film
-    C = airy_coefficients_exact(uc, N2, dr.opaque(Float64, n3), derivatives=True, ops=dr)
-    C["u"] = uc
-    us = dr.select(pos, u, 1.0)
-    E1, E2 = dr.select(pos, v1 / us, 0.0), dr.select(pos, v2 / us, 0.0)
-    K = Float64(4.0 * np.pi / data.wl)
-    O = data.device()
-    bands = dr.opaque(UInt32, b)
-
-    def body(band, *acc):
-        j = first + band
-        S0m, Q, S0u, Qu, S0d, Qd = _airy_lanes(C, d, dr.gather(Float64, K, band), dr)
-        r, J = _residual_parts(dr.gather(Float64, O[0], j), dr.gather(Float64, O[1], j), dr.gather(Float64, O[2], j),
-                               S0m, Q, S0u, Qu, S0d, Qd, v1, v2, E1, E2, w0, w1)
-        return (band + 1, *(a + t for a, t in zip(acc, _products(r, J))))
-
-    zero = dr.zeros(Float64, m)
-    state = (dr.zeros(UInt32, m),) + (zero,) * 10
-    sums = dr.while_loop(state, lambda band, *acc: band < bands, body)[1:]
-    dr.eval(*sums)
-    return [s_.numpy() for s_ in sums]
-
-
-class _NpOps:
-    cos = staticmethod(np.cos)
-    sin = staticmethod(np.sin)
-
-
-_NP_OPS = _NpOps()
 
 
 def fit_stokes_pixels(S0, S1, S2, x0, film_ior, substrate_ior, wavelengths_nm, w0=1.0, iterations=10,
@@ -285,9 +150,12 @@ def fit_stokes_pixels(S0, S1, S2, x0, film_ior, substrate_ior, wavelengths_nm, w
     data = S0 if isinstance(S0, StokesData) else StokesData(S0, S1, S2, wavelengths_nm, w0)
     n = data.n
     n2 = np.broadcast_to(np.asarray(film_ior, dtype=np.float64), (n,))
+    x0 = np.array(x0, dtype=np.float64)
+    # one quadrature for the whole fit: that of the thickest start, with room for its steps
+    model = model_for(data.wavelengths_nm, substrate_ior, x0[:, 2] + max_step_nm, n2)
 
     def normal_equations(x, idx):
-        H, g, cost = data.normal_equations(x, idx, n2[idx], substrate_ior)
+        H, g, cost = data.normal_equations(x, idx, n2[idx], substrate_ior, model)
         data_cost = cost.copy()
         if thickness_prior is not None:
             d_p, w_p = thickness_prior[0][idx], thickness_prior[1][idx]
@@ -304,7 +172,7 @@ def fit_stokes_pixels(S0, S1, S2, x0, film_ior, substrate_ior, wavelengths_nm, w
         x[:, 2] = np.maximum(x[:, 2], 0.0)
         return x
 
-    return levenberg_marquardt(project(np.array(x0, dtype=np.float64)), normal_equations, iterations,
+    return levenberg_marquardt(project(x0), normal_equations, iterations,
                                project=project, max_step=[max_step_u, max_step_u, max_step_nm],
                                step_tol=[3e-5, 3e-5, 0.1], lam0=1e-3, lam_down=1.0 / 3.0, lam_up=5.0,
                                floor_rel=1e-9, floor_abs=1e-18)
@@ -386,7 +254,7 @@ def reconstruct_stokes(stokes, wavelengths_nm, substrate_ior, mask, smoothness=2
         p_ = -(S1[rows] * c + S2[rows] * s_)
         return np.concatenate([S0[rows] + p_, S0[rows] - p_], axis=1)
 
-    noise = np.maximum(_band_noise(S0), 1e-9)
+    noise = np.maximum(band_noise(S0), 1e-9)
     t["prepare"] = time.perf_counter() - t0
 
     # 1. the film index, once for the object, on either side of the substrate's (from an even

@@ -157,17 +157,53 @@ def _ops_for(*values):
 # ---------------------------------------------------------------------------
 
 
-@dataclass
+def _plus(a, b):
+    if a is None:
+        return b
+    return a if b is None else a + b
+
+
+def _minus(a, b):
+    if b is None:
+        return a
+    return -b if a is None else a - b
+
+
+def _times(a, b):
+    return None if a is None or b is None else a * b
+
+
 class Complex:
     """Complex number stored as two real arrays (``re``, ``im``) of any backend.
 
     Dr.Jit's own complex type only wraps ``Float``; Mitsuba's spectra are
     4-wide arrays, so the optics keeps real and imaginary parts apart and works
     on any real array type that supports ``+ - * /``.
+
+    An imaginary part known to be zero (a real number: a lossless index, a real normal
+    component) is carried as nothing rather than as an array of zeros, so that the
+    arithmetic of real quantities costs what real arithmetic costs; :attr:`im` gives it as an
+    array all the same.
     """
 
-    re: Any
-    im: Any
+    __slots__ = ("re", "_im")
+
+    def __init__(self, re, im=None):
+        self.re = re
+        self._im = im
+
+    @property
+    def im(self):
+        """The imaginary part (an array of zeros for a real number)."""
+        return 0.0 * self.re if self._im is None else self._im
+
+    @property
+    def is_real(self) -> bool:
+        """Whether the imaginary part is known to be zero."""
+        return self._im is None
+
+    def __repr__(self):
+        return f"Complex(re={self.re!r}, im={self.im!r})"
 
     @staticmethod
     def of(x) -> "Complex":
@@ -177,48 +213,52 @@ class Complex:
             isinstance(x, np.ndarray) and np.iscomplexobj(x)
         ):
             return Complex(np.real(x), np.imag(x))
-        return Complex(x, 0.0 * x)
+        return Complex(x)
 
     def __add__(self, o):
         o = Complex.of(o)
-        return Complex(self.re + o.re, self.im + o.im)
+        return Complex(self.re + o.re, _plus(self._im, o._im))
 
     __radd__ = __add__
 
     def __sub__(self, o):
         o = Complex.of(o)
-        return Complex(self.re - o.re, self.im - o.im)
+        return Complex(self.re - o.re, _minus(self._im, o._im))
 
     def __rsub__(self, o):
         return Complex.of(o) - self
 
     def __neg__(self):
-        return Complex(-self.re, -self.im)
+        return Complex(-self.re, None if self._im is None else -self._im)
 
     def __mul__(self, o):
         if not isinstance(o, Complex):
-            return Complex(self.re * o, self.im * o)
-        return Complex(self.re * o.re - self.im * o.im, self.re * o.im + self.im * o.re)
+            return Complex(self.re * o, None if self._im is None else self._im * o)
+        return Complex(_minus(self.re * o.re, _times(self._im, o._im)),
+                       _plus(_times(self.re, o._im), _times(self._im, o.re)))
 
     __rmul__ = __mul__
 
     def __truediv__(self, o):
         if not isinstance(o, Complex):
-            return Complex(self.re / o, self.im / o)
-        inv = 1.0 / (o.re * o.re + o.im * o.im)
+            return Complex(self.re / o, None if self._im is None else self._im / o)
+        if o._im is None:
+            inv = 1.0 / o.re
+            return Complex(self.re * inv, None if self._im is None else self._im * inv)
+        inv = 1.0 / (o.re * o.re + o._im * o._im)
         return Complex(
-            (self.re * o.re + self.im * o.im) * inv,
-            (self.im * o.re - self.re * o.im) * inv,
+            _plus(self.re * o.re, _times(self._im, o._im)) * inv,
+            _minus(_times(self._im, o.re), self.re * o._im) * inv,
         )
 
     def __rtruediv__(self, o):
         return Complex.of(o) / self
 
     def conj(self) -> "Complex":
-        return Complex(self.re, -self.im)
+        return Complex(self.re, None if self._im is None else -self._im)
 
     def abs2(self):
-        return self.re * self.re + self.im * self.im
+        return self.re * self.re if self._im is None else self.re * self.re + self._im * self._im
 
     def to_numpy(self) -> np.ndarray:
         """As a NumPy complex array (NumPy backend only)."""
@@ -232,6 +272,8 @@ def _csqrt(z: Complex, ops) -> Complex:
     as ``Im z / (2t)``, so a nearly real argument (a weakly absorbing medium) keeps its
     small imaginary part accurately instead of losing it to cancellation.
     """
+    if z.is_real and ops is _NUMPY and np.all(np.asarray(z.re) >= 0):
+        return Complex(np.sqrt(z.re))
     t = ops.sqrt(0.5 * (ops.sqrt(z.re * z.re + z.im * z.im) + ops.abs(z.re)))
     small = ops.select(t > 0, 0.5 * z.im / ops.select(t > 0, t, 1.0), 0.0 * t)
     positive = z.re >= 0
@@ -242,6 +284,8 @@ def _csqrt(z: Complex, ops) -> Complex:
 
 def _cexp_i(z: Complex, ops) -> Complex:
     """exp(i z) for complex z."""
+    if z.is_real:
+        return Complex(ops.cos(z.re), ops.sin(z.re))
     mag = ops.exp(-z.im)
     return Complex(mag * ops.cos(z.re), mag * ops.sin(z.re))
 
@@ -255,11 +299,15 @@ def _index(n, k) -> Complex:
     n = Complex.of(n)
     if isinstance(k, (int, float)) and k == 0:
         return n
-    return n + Complex(0.0 * n.re + 0.0, k)
+    return Complex(n.re, _plus(n._im, k))
 
 
-def _normal_component(n: Complex, n1_sin2: Any, ops) -> Complex:
-    """q = n cos θ = sqrt(n² - n1² sin² θ1), decaying branch (Im q >= 0)."""
+def _normal_component(n: Complex, n1_sin2: Any, ops, real: bool = False) -> Complex:
+    """q = n cos θ = sqrt(n² - n1² sin² θ1), decaying branch (Im q >= 0); with ``real`` (a
+    lossless medium of index at least the exterior's, where the wave never decays) the
+    real square root."""
+    if real:
+        return Complex(ops.sqrt(ops.maximum((n * n - n1_sin2).re, 0.0)))
     return _csqrt(n * n - n1_sin2, ops)
 
 
@@ -423,7 +471,7 @@ def _layer_triples(layers):
 
 
 def stack_amplitudes(cos_theta1, wavelength_nm, layers, substrate_ior, substrate_k=0.0,
-                     ext_ior=1.0, transmission=False):
+                     ext_ior=1.0, transmission=False, lossless=False):
     """Complex s and p amplitudes of a stack of films on a substrate (recursive Airy sum).
 
     Parameters
@@ -443,6 +491,11 @@ def stack_amplitudes(cos_theta1, wavelength_nm, layers, substrate_ior, substrate
         Exterior (real) index ``n1``.
     transmission : bool
         Also return the transmission amplitudes into the substrate.
+    lossless : bool
+        A promise that every layer and the substrate is lossless (``k = 0``) with an index
+        at least the exterior's, so that every normal component is real: the amplitudes are
+        then computed with real Fresnel coefficients (about half the arithmetic in a Dr.Jit
+        kernel; NumPy finds this out by itself). Results are the same.
 
     Returns
     -------
@@ -489,7 +542,7 @@ def stack_amplitudes(cos_theta1, wavelength_nm, layers, substrate_ior, substrate
     indices = [n1] + [_index(n, k) for n, k, _ in layers] + [_index(substrate_ior, substrate_k)]
     sin2 = 1.0 - cos_theta1 * cos_theta1
     n1_sin2 = n1 * n1 * sin2  # n1 real: (n1 sin θ1)², the same in every layer (Snell)
-    normals = [n1 * cos_theta1] + [_normal_component(n, n1_sin2, ops) for n in indices[1:]]
+    normals = [n1 * cos_theta1] + [_normal_component(n, n1_sin2, ops, lossless) for n in indices[1:]]
 
     # The bottom interface, then each layer from the substrate up.
     r_s, r_p = _fresnel(indices[-2], normals[-2], indices[-1], normals[-1])
