@@ -91,7 +91,7 @@ def capture_from_dataset(dataset, options) -> RGBCapture:
     if options.mask is not None:
         mask = np.asarray(options.mask, dtype=bool)
         if mask.shape != shape:
-            raise UserError(f"--mask: shape {mask.shape} does not match the images {shape}")
+            raise UserError(f"shape {mask.shape} does not match the images {shape}", argument="mask")
     else:
         S0 = fit_stokes(np.stack([images[a] for a in sorted(images)]), sorted(images))[0]
         mask = mask_from_intensity(np.clip(S0.mean(axis=-1), 0.0, None))
