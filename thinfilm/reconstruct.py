@@ -66,7 +66,7 @@ def reconstruct(kind: str, dataset_path, method=None, film_ior=None, substrate_i
     ``NAME=VALUE`` strings (checked against what the method declares). Returns the
     :class:`~thinfilm.core.io.Estimate` and the :class:`~thinfilm.core.registry.Method`."""
     from thinfilm.core import registry
-    from thinfilm.core.errors import UserError
+    from thinfilm.core.errors import NoResultError, UserError
     from thinfilm.core.io import read_dataset, read_mask_file
 
     m = registry.get(kind, method)
@@ -89,7 +89,7 @@ def reconstruct(kind: str, dataset_path, method=None, film_ior=None, substrate_i
                                method_options=given)
     try:
         est = registry.run(m, ds, options)
-    except (UserError, MemoryError):
+    except (UserError, NoResultError, MemoryError):
         raise
     except Exception as e:
         if str(getattr(m.function, "__module__", "")).startswith("thinfilm."):
