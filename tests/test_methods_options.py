@@ -72,6 +72,7 @@ def test_a_range_the_bands_cannot_resolve_warns_once(thick_film, tmp_path, capsy
     assert sum("the bands resolve interference fringes" in ln for ln in err.splitlines()) == 1
 
 
+@registry.estimator("empty-test", kind="rgb", needs=("polarized_rgb",))
 def empty_method(dataset, options):
     """A method that resolves nothing (for the test below)."""
     shape = dataset.shape
