@@ -40,7 +40,7 @@ def set_thread_budget(threads: int | None) -> None:
     n = thread_budget()
     import drjit as dr
 
-    from .io import set_exr_threads
+    from .exr import set_exr_threads
 
     if dr.thread_count() != n:
         dr.set_thread_count(n)
