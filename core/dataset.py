@@ -248,10 +248,7 @@ def read_dataset(path, need=("polarized_rgb",), optional=None) -> Dataset:
 
     p = root / "valid.exr"
     if p.is_file():
-        ch = read_exr(p)
-        if "valid" not in ch:
-            raise UserError(f"{p}: missing channel 'valid'")
-        arr = ch["valid"]
+        arr = read_exr(p, ["valid"])["valid"]
         if shape is not None and arr.shape != shape:
             raise UserError(f"{p}: channel 'valid' has shape {arr.shape}, expected {shape}")
         _no_nan(arr[..., None], p, ["valid"])
