@@ -207,3 +207,30 @@ def test_a_write_the_file_system_refuses_is_one_line_and_an_os_error(tmp_path, c
         assert text == f"{path}: cannot write the EXR file ({os.strerror(code)})"
     assert capfd.readouterr() == ("", "")
     assert not (tmp_path / "no").exists()
+
+
+def test_openexrs_pool_follows_the_thread_budget_and_an_explicit_size(tmp_path):
+    import OpenEXR
+
+    from thinfilm.core.exr import MAX_EXR_THREADS, set_exr_threads
+    from thinfilm.core.threads import cores, set_thread_budget
+
+    def pool_after_a_write():
+        write_exr(tmp_path / "x.exr", _channels(6))
+        return OpenEXR.global_thread_count()
+
+    full = min(cores(), MAX_EXR_THREADS)
+    try:
+        set_thread_budget(1)
+        assert pool_after_a_write() == 0  # one thread: no pool
+        set_thread_budget(None)
+        assert pool_after_a_write() == (full if full > 1 else 0)
+        set_exr_threads(3)
+        set_thread_budget(1)
+        assert pool_after_a_write() == 3  # an explicit size stays until set_exr_threads(None)
+        set_exr_threads(None)
+        assert pool_after_a_write() == 0
+    finally:
+        set_exr_threads(None)
+        set_thread_budget(None)
+    assert pool_after_a_write() == (full if full > 1 else 0)
