@@ -12,7 +12,17 @@ Modules
 :mod:`~thinfilm.core.colorimetry`
     Camera and illuminant spectra, camera RGB of reflectance spectra.
 :mod:`~thinfilm.core.io`
-    Dataset and estimate folders: readers, writers, channel names, format version.
+    Dataset, estimate and evaluation folders: the public names of the five modules below.
+:mod:`~thinfilm.core.exr`
+    EXR files: channel names, reading and writing, OpenEXR's thread pool.
+:mod:`~thinfilm.core.files`
+    Text, TOML and JSON files and mask images, each failure one line.
+:mod:`~thinfilm.core.dataset`
+    Dataset folders (``thinfilm-dataset/1``): schema, reader, writer, preview.
+:mod:`~thinfilm.core.estimate`
+    Estimate folders: the :class:`~thinfilm.core.estimate.Estimate`, reader, writer, mesh.
+:mod:`~thinfilm.core.evaluation_files`
+    Evaluation folders: metrics and error maps.
 :mod:`~thinfilm.core.outputs`
     Safe output folders and files: the replacement rule, the marker, the lock, temporaries.
 :mod:`~thinfilm.core.signals`

@@ -56,7 +56,7 @@ def _read_csv(path: Path, columns: int, what: str) -> np.ndarray:
     row): at least 2 rows, finite numbers, values >= 0, wavelengths increasing. Anything
     else is one :class:`UserError` naming the file and the line."""
     names = "wavelength_nm and " + (f"{columns} values" if columns > 1 else "a value")
-    from .io import read_text_file
+    from .files import read_text_file
 
     text = read_text_file(path, f"{what} CSV", encoding="utf-8-sig")
     rows = []

@@ -410,7 +410,7 @@ def run(method: Method, dataset, options: Options):
 
     import numpy as np
 
-    from .io import Estimate
+    from .estimate import Estimate
 
     for part in method.needs:
         if not dataset.has(part):

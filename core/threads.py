@@ -3,7 +3,9 @@
 One number, the process's thread budget: by default the cores it may run on. A Dask worker
 given a share of the cores sets it to that share (:func:`set_thread_budget`), which sizes
 Dr.Jit's and OpenEXR's thread pools and the generator's noise threads alike, so that the
-workers together use no more threads than there are cores.
+workers together use no more threads than there are cores. Dr.Jit's pool is sized here;
+OpenEXR's follows the budget at its next read or write (:mod:`thinfilm.core.exr`), and this
+module imports nothing of the project.
 
 >>> from thinfilm.core.threads import cores, thread_budget
 >>> thread_budget() == cores() >= 1
@@ -34,14 +36,12 @@ def thread_budget() -> int:
 
 def set_thread_budget(threads: int | None) -> None:
     """Give this process ``threads`` threads (at least 1; None: back to :func:`cores`):
-    Dr.Jit's pool, OpenEXR's pool (at most 8) and the generator's noise threads follow."""
+    Dr.Jit's pool, OpenEXR's pool (at most :data:`thinfilm.core.exr.MAX_EXR_THREADS`, from
+    the next EXR read or write on) and the generator's noise threads follow."""
     global _BUDGET
     _BUDGET = None if threads is None else max(1, int(threads))
     n = thread_budget()
     import drjit as dr
 
-    from .io import set_exr_threads
-
     if dr.thread_count() != n:
         dr.set_thread_count(n)
-    set_exr_threads(min(n, 8))

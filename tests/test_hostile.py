@@ -101,12 +101,12 @@ def _copy_of(src, dst, extra=None):
 
 
 def _full_disk(monkeypatch, c):
-    import thinfilm.core.io as io
+    import thinfilm.core.dataset as dataset
 
     def full(path, channels):
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
 
-    monkeypatch.setattr(io, "write_exr", full)
+    monkeypatch.setattr(dataset, "write_exr", full)
 
 
 def _full_disk_render(monkeypatch, c):

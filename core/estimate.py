@@ -1,0 +1,136 @@
+"""Estimate folders (``docs/design.md``, *Estimate folder*): ``estimate.exr``,
+``estimate.json`` and an optional ``surface.ply``.
+
+:func:`read_estimate` stops with a :class:`~thinfilm.core.errors.UserError` that names the file
+and the channel; :func:`write_estimate` writes into a folder that exists, deterministically.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .errors import UserError
+from .exr import read_exr, write_exr
+from .files import read_json, write_json
+
+__all__ = ["ESTIMATE_CHANNELS", "Estimate", "write_estimate", "read_estimate", "height_to_mesh"]
+
+ESTIMATE_CHANNELS = ("normal.X", "normal.Y", "normal.Z", "zenith", "azimuth", "thickness", "valid")
+
+
+@dataclass
+class Estimate:
+    """What an estimator returns, and what an estimate folder holds.
+
+    Attributes
+    ----------
+    normals : (H, W, 3) unit normals in the camera frame.
+    thickness_nm : (H, W) film thickness of the (top) layer in nm.
+    valid : (H, W) bool, pixels with an estimate.
+    film_ior : the film index used or estimated: a number or a material name (``estimate.json``).
+    substrate_ior : the substrate index used (a number), or None.
+    height : (H, W) height field in scene units (``pixel_size`` per pixel), or None.
+    pixel_size : scene units per pixel of ``height``.
+    info : more entries for ``estimate.json`` (``method``, ``timings_s``, diagnostics).
+    """
+
+    normals: np.ndarray
+    thickness_nm: np.ndarray
+    valid: np.ndarray
+    film_ior: object = None
+    substrate_ior: float | None = None
+    height: np.ndarray | None = None
+    pixel_size: float = 1.0
+    info: dict = field(default_factory=dict)
+
+    @property
+    def zenith_azimuth_deg(self):
+        from .conventions import normals_to_angles
+
+        return normals_to_angles(self.normals)
+
+    def json(self) -> dict:
+        """The ``estimate.json`` content."""
+        out = dict(self.info)
+        out["film_ior"] = self.film_ior
+        out["substrate_ior"] = self.substrate_ior
+        out.setdefault("method", None)
+        out.setdefault("timings_s", {})
+        return out
+
+
+def height_to_mesh(height, mask, pixel_size=1.0):
+    """A trimesh surface from a height map on a mask (x right, y up, z towards the camera).
+
+    Vertices sit at pixel centres; two triangles per 2×2 block of masked pixels.
+    """
+    import trimesh
+
+    h, w = mask.shape
+    idx = -np.ones((h, w), dtype=np.int64)
+    ys, xs = np.nonzero(mask)
+    idx[ys, xs] = np.arange(ys.size)
+    verts = np.stack([(xs - (w - 1) / 2) * pixel_size, ((h - 1) / 2 - ys) * pixel_size,
+                      height[ys, xs]], axis=-1)
+    a, b = idx[:-1, :-1], idx[:-1, 1:]
+    c, d = idx[1:, :-1], idx[1:, 1:]
+    faces = []
+    for tri in ((a, c, b), (b, c, d)):  # counter-clockwise seen from +z (image y is down)
+        t = np.stack([x.ravel() for x in tri], axis=-1)
+        faces.append(t[np.all(t >= 0, axis=1)])
+    return trimesh.Trimesh(vertices=verts, faces=np.concatenate(faces), process=False)
+
+
+def write_estimate(folder, estimate: Estimate) -> Path:
+    """Write the files of an estimate folder into ``folder`` (which exists):
+    ``estimate.exr``, ``estimate.json`` and, with a height field, ``surface.ply``."""
+    from .conventions import normals_to_angles
+
+    folder = Path(folder)
+    normals = np.asarray(estimate.normals, dtype=np.float64)
+    valid = np.asarray(estimate.valid, dtype=bool)
+    zenith, azimuth = normals_to_angles(normals)
+    nan = np.float32(np.nan)
+    channels = {
+        "normal.X": np.where(valid, normals[..., 0], nan),
+        "normal.Y": np.where(valid, normals[..., 1], nan),
+        "normal.Z": np.where(valid, normals[..., 2], nan),
+        "zenith": np.where(valid, zenith, nan),
+        "azimuth": np.where(valid, azimuth, nan),
+        "thickness": np.where(valid, estimate.thickness_nm, nan),
+        "valid": valid.astype(np.float32),
+    }
+    write_exr(folder / "estimate.exr", channels)
+    write_json(folder / "estimate.json", estimate.json())
+    if estimate.height is not None and valid.sum() >= 4:
+        height = np.nan_to_num(np.asarray(estimate.height, dtype=np.float64))
+        height_to_mesh(height, valid, estimate.pixel_size).export(folder / "surface.ply")
+    return folder
+
+
+def read_estimate(path) -> Estimate:
+    """Read an estimate folder. One-line errors name the file and the channel."""
+    root = Path(path)
+    if not root.is_dir():
+        raise UserError(f"{root}: estimate folder not found")
+    exr = root / "estimate.exr"
+    ch = read_exr(exr)
+    shape = None
+    for name in ESTIMATE_CHANNELS:
+        if name not in ch:
+            raise UserError(f"{exr}: missing channel '{name}'")
+        if shape is None:
+            shape = ch[name].shape
+        elif ch[name].shape != shape:
+            raise UserError(f"{exr}: channel '{name}' has shape {ch[name].shape}, expected {shape}")
+    info = read_json(root / "estimate.json")
+    if not isinstance(info, dict):
+        raise UserError(f"{root / 'estimate.json'}: expected a JSON object")
+    info = dict(info)
+    normals = np.stack([ch["normal.X"], ch["normal.Y"], ch["normal.Z"]], axis=-1)
+    return Estimate(normals=normals, thickness_nm=ch["thickness"], valid=ch["valid"] > 0.5,
+                    film_ior=info.pop("film_ior", None), substrate_ior=info.pop("substrate_ior", None),
+                    info=info)
