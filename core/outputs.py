@@ -88,7 +88,7 @@ Examples
 ...     check_output_dir(base / "result", command="example")
 ... except UserError as e:
 ...     print(str(e).split(": ", 1)[1])
-holds 'notes.md', which thinfilm did not write; refusing to replace it (choose another --out, or move your files away)
+holds 'notes.md', which thinfilm did not write; refusing to replace it (choose another output folder, or move your files away)
 >>> import shutil; shutil.rmtree(base)
 """
 

@@ -86,7 +86,7 @@ def test_output_replaces_an_earlier_output_only_when_complete(tmp_path):
 def test_output_path_errors_are_one_line(tmp_path, monkeypatch):
     blocker = tmp_path / "file"
     blocker.write_text("x")
-    with pytest.raises(UserError, match="--out .*file/x: cannot create the folder"):
+    with pytest.raises(UserError, match="^out .*file/x: cannot create the folder"):
         with atomic_output_dir(blocker / "x"):
             pass
     with pytest.raises(UserError, match="exists and is not a folder"):
