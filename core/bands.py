@@ -124,3 +124,30 @@ def band_windows(weights) -> np.ndarray:
     if int(nz.sum()) != int(np.sum(last - first + 1)):
         raise ValueError("a band's weights are not contiguous")
     return np.stack([first, last + 1], axis=1).astype(np.int64)
+
+
+#: bands per fringe period that a spectral capture needs for its fringes to be counted (the
+#: Nyquist rate is 2; the margin keeps the fringe's extrema apart when a band also averages)
+BANDS_PER_FRINGE = 2.5
+#: thicknesses the spectral methods consider when none are given (nm); the upper end is
+#: lowered to what the bands resolve (:func:`resolved_optical_thickness_nm`)
+SPECTRAL_THICKNESS_RANGE_NM = (20.0, 5000.0)
+
+
+def resolved_optical_thickness_nm(wavelengths_nm, band_fwhm_nm: float = 0.0) -> float:
+    """The largest optical thickness ``n d`` (nm) whose fringes the bands resolve.
+
+    At normal incidence a film's fringes are periodic in ``1/λ``; their period at the shortest
+    wavelength is ``λ_min² / (2 n d)``. They are resolved while that period spans at least
+    :data:`BANDS_PER_FRINGE` times the band step (the median spacing of the band centres) or
+    the band width, whichever is larger.
+
+    >>> round(resolved_optical_thickness_nm(np.arange(400.0, 721.0, 4.0), 4.0))
+    8000
+    """
+    wl = np.sort(np.asarray(wavelengths_nm, dtype=np.float64).ravel())
+    if wl.size < 2:
+        return 0.0
+    step = float(np.median(np.diff(wl)))
+    scale = BANDS_PER_FRINGE * max(step, float(band_fwhm_nm or 0.0))
+    return float(wl[0] ** 2 / (2.0 * scale))

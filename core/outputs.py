@@ -160,7 +160,7 @@ def _resolve(path) -> Path:
     try:
         return Path(os.path.abspath(os.path.expanduser(os.fspath(path)))).resolve()
     except (RuntimeError, OSError) as e:  # a loop of symbolic links
-        raise UserError(f"--out {path}: cannot resolve the path ({e})") from None
+        raise UserError(f"cannot resolve the path ({e})", argument="out", value=path) from None
 
 
 def _reason(e: OSError) -> str:
@@ -370,24 +370,25 @@ def _cmd(command) -> str:
     return f"'thinfilm {command}'" if command else "another thinfilm command"
 
 
-def _check_ours(out: Path, command, what: str = "--out") -> None:
+def _check_ours(out: Path, command, what: str = "out") -> None:
     """``out`` exists and is a folder: refuse unless empty or ours by the rule."""
     entries = [p for p in out.iterdir() if not _is_stale_temporary(p)]
     if not entries:
         return
     marker = read_marker(out)
     if marker is None:
-        raise UserError(f"{what} {out}: folder exists, is not empty and is not a thinfilm output; "
-                        f"refusing to replace it (it has no {MARKER} marker)")
+        raise UserError(f"folder exists, is not empty and is not a thinfilm output; "
+                        f"refusing to replace it (it has no {MARKER} marker)", argument=what, value=out)
     if marker.get("command") != command:
-        raise UserError(f"{what} {out}: holds the output of {_cmd(marker.get('command'))}, not of "
-                        f"{_cmd(command)}; refusing to replace it")
+        raise UserError(f"holds the output of {_cmd(marker.get('command'))}, not of "
+                        f"{_cmd(command)}; refusing to replace it", argument=what, value=out)
     known = set(marker["entries"])
     foreign = sorted(e for e in _tree(out) if e not in known and not _in_stale_temporary(out, e))
     if foreign:
         more = f" and {len(foreign) - 1} more" if len(foreign) > 1 else ""
-        raise UserError(f"{what} {out}: holds '{foreign[0].rstrip('/')}'{more}, which thinfilm did not "
-                        f"write; refusing to replace it (choose another --out, or move your files away)")
+        raise UserError(f"holds '{foreign[0].rstrip('/')}'{more}, which thinfilm did not "
+                        f"write; refusing to replace it (choose another output folder, or move your files "
+                        f"away)", argument=what, value=out)
 
 
 def check_output_dir(out, *, command=None, inputs=()) -> Path:
@@ -416,26 +417,26 @@ def check_output_dir(out, *, command=None, inputs=()) -> Path:
     """
     out = _resolve(out)
     if out.parent == out:
-        raise UserError(f"--out {out}: cannot write an output folder at the file-system root")
+        raise UserError(f"cannot write an output folder at the file-system root", argument="out", value=out)
     problem = _overlap(out, inputs)
     if problem:
-        raise UserError(f"--out {out}: {problem}")
+        raise UserError(f"{problem}", argument="out", value=out)
     if out.exists():
         if not out.is_dir():
-            raise UserError(f"--out {out}: exists and is not a folder")
+            raise UserError(f"exists and is not a folder", argument="out", value=out)
         try:
             _check_ours(out, command)
         except PermissionError as e:
-            raise UserError(f"--out {out}: cannot read the existing folder ({_reason(e)})") from None
+            raise UserError(f"cannot read the existing folder ({_reason(e)})", argument="out", value=out) from None
     elif out.is_symlink():
-        raise UserError(f"--out {out}: is a symbolic link that points nowhere")
+        raise UserError(f"is a symbolic link that points nowhere", argument="out", value=out)
     return out
 
 
 # -- the lock -------------------------------------------------------------------------------------
 
 @contextlib.contextmanager
-def output_lock(out, what: str = "--out"):
+def output_lock(out, what: str = "out"):
     """Hold the exclusive lock of output ``out`` (``.NAME.lock`` beside it; its parent must
     exist). A second holder gets a :class:`UserError` at once; the lock file is removed
     when released."""
@@ -461,7 +462,7 @@ def _acquire(out: Path, what: str) -> int:
         try:
             fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o666)
         except OSError as e:
-            raise UserError(f"{what} {out}: cannot create the folder ({_reason(e)})") from None
+            raise UserError(f"cannot create the folder ({_reason(e)})", argument=what, value=out) from None
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError as e:
@@ -471,9 +472,9 @@ def _acquire(out: Path, what: str) -> int:
             os.close(fd)
             if e.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
                 who = f" (process {owner})" if owner else ""
-                raise UserError(f"{what} {out}: another thinfilm command{who} is writing it; wait for it "
-                                f"to finish or choose another --out") from None
-            raise UserError(f"{what} {out}: cannot lock the output ({_reason(e)})") from None
+                raise UserError(f"another thinfilm command{who} is writing it; wait for it "
+                                f"to finish or choose another output folder", argument=what, value=out) from None
+            raise UserError(f"cannot lock the output ({_reason(e)})", argument=what, value=out) from None
         # The file may have been removed by the previous holder after we opened it: then
         # our lock is on a dead inode; start again.
         try:
@@ -531,7 +532,7 @@ def _locked(out, command, inputs, created):
     try:
         _make_parents(out.parent, created)
     except OSError as e:
-        raise UserError(f"--out {out}: cannot create the folder ({_reason(e)})") from None
+        raise UserError(f"cannot create the folder ({_reason(e)})", argument="out", value=out) from None
     with output_lock(out):
         clean_stale_temporaries(out.parent)
         check_output_dir(out, command=command, inputs=inputs)
@@ -559,7 +560,7 @@ def atomic_output_dir(out, *, command=None, inputs=()):
                 try:
                     tmp.mkdir(mode=0o700)
                 except OSError as e:
-                    raise UserError(f"--out {out}: cannot create the folder ({_reason(e)})") from None
+                    raise UserError(f"cannot create the folder ({_reason(e)})", argument="out", value=out) from None
                 yield tmp
                 _write_marker(tmp, command, _tree(tmp))
                 os.chmod(tmp, _dir_mode())
@@ -568,7 +569,7 @@ def atomic_output_dir(out, *, command=None, inputs=()):
             except OSError as e:
                 _rmtree(tmp)
                 if _about_output(e, tmp, out):
-                    raise UserError(f"--out {out}: cannot write the output ({_reason(e)})") from None
+                    raise UserError(f"cannot write the output ({_reason(e)})", argument="out", value=out) from None
                 raise
             except BaseException:
                 _rmtree(tmp)
@@ -616,8 +617,8 @@ class OutputFolder:
             inside = {rel + "/"} | {f"{rel}/{e}" for e in _tree(target)} if target.is_dir() else {rel}
             foreign = sorted(e for e in inside if e not in self._entries)
             if foreign:
-                raise UserError(f"--out {self.path}: holds '{foreign[0].rstrip('/')}', which thinfilm did "
-                                f"not write; refusing to replace it")
+                raise UserError(f"holds '{foreign[0].rstrip('/')}', which thinfilm did "
+                                f"not write; refusing to replace it", argument="out", value=self.path)
         return target
 
     @contextlib.contextmanager
@@ -628,7 +629,7 @@ class OutputFolder:
         try:
             target = self._prepare_parent(rel)
         except OSError as e:
-            raise UserError(f"--out {self.path}: cannot write the output ({_reason(e)})") from None
+            raise UserError(f"cannot write the output ({_reason(e)})", argument="out", value=self.path) from None
         tmp = target.parent / _temp_name(target.name)
         try:
             tmp.mkdir(mode=0o700)
@@ -640,7 +641,7 @@ class OutputFolder:
         except OSError as e:
             _rmtree(tmp)
             if _about_output(e, tmp, self.path):
-                raise UserError(f"--out {self.path}: cannot write the output ({_reason(e)})") from None
+                raise UserError(f"cannot write the output ({_reason(e)})", argument="out", value=self.path) from None
             raise
         except BaseException:
             _rmtree(tmp)
@@ -661,7 +662,7 @@ class OutputFolder:
             _write_marker(self.path, self.command, self._entries)
             _swap_into_place(staged, target)
         except OSError as e:
-            raise UserError(f"--out {self.path}: cannot write the output ({_reason(e)})") from None
+            raise UserError(f"cannot write the output ({_reason(e)})", argument="out", value=self.path) from None
         return target
 
     def write_bytes(self, rel, data: bytes) -> Path:
@@ -681,7 +682,7 @@ class OutputFolder:
                     tmp.unlink()
                 raise
         except OSError as e:
-            raise UserError(f"--out {self.path}: cannot write the output ({_reason(e)})") from None
+            raise UserError(f"cannot write the output ({_reason(e)})", argument="out", value=self.path) from None
         return target
 
     def write_text(self, rel, text: str) -> Path:
@@ -721,7 +722,7 @@ def open_output_dir(out, *, command=None, inputs=()):
                 if read_marker(out) is None:
                     _write_marker(out, command, ())
             except OSError as e:
-                raise UserError(f"--out {out}: cannot create the folder ({_reason(e)})") from None
+                raise UserError(f"cannot create the folder ({_reason(e)})", argument="out", value=out) from None
             yield OutputFolder(out, command)
     except BaseException:
         if fresh and out.exists() and read_marker(out) is not None and not (
@@ -733,7 +734,7 @@ def open_output_dir(out, *, command=None, inputs=()):
 
 # -- files ----------------------------------------------------------------------------------------
 
-def check_output_files(paths, *, overwrite=False, inputs=(), what="--out") -> list:
+def check_output_files(paths, *, overwrite=False, inputs=(), what="out") -> list:
     """Check that files ``paths`` may be written: each absent, or an existing file and
     ``overwrite`` given; none of them an input. Returns the resolved paths."""
     out = []
@@ -741,19 +742,19 @@ def check_output_files(paths, *, overwrite=False, inputs=(), what="--out") -> li
         r = _resolve(p)
         problem = _overlap(r, inputs)
         if problem:
-            raise UserError(f"{what} {r}: {problem}")
+            raise UserError(f"{problem}", argument=what, value=r)
         if r.is_dir():
-            raise UserError(f"{what} {r}: is a folder, expected a file path")
+            raise UserError(f"is a folder, expected a file path", argument=what, value=r)
         if (r.exists() or r.is_symlink()) and not overwrite:
-            raise UserError(f"{what} {r}: file exists; pass --overwrite to replace it")
+            raise UserError(f"file exists; pass --overwrite to replace it", argument=what, value=r)
         out.append(r)
     if len(set(out)) != len(out):
-        raise UserError(f"{what}: two outputs have the same path {out}")
+        raise UserError(f"two outputs have the same path {out}", argument=what)
     return out
 
 
 @contextlib.contextmanager
-def atomic_output_files(paths, *, overwrite=False, inputs=(), what="--out"):
+def atomic_output_files(paths, *, overwrite=False, inputs=(), what="out"):
     """Yield ``{path: temporary path}`` beside each of ``paths`` (same extension, so writers
     that go by the extension work); when the block succeeds, rename them all into place.
 
@@ -767,7 +768,7 @@ def atomic_output_files(paths, *, overwrite=False, inputs=(), what="--out"):
             for t in targets:
                 _make_parents(t.parent, created)
         except OSError as e:
-            raise UserError(f"{what} {targets[0]}: cannot create the folder ({_reason(e)})") from None
+            raise UserError(f"cannot create the folder ({_reason(e)})", argument=what, value=targets[0]) from None
         with output_lock(targets[0], what=what):
             for parent in {t.parent for t in targets}:
                 clean_stale_temporaries(parent)
@@ -787,7 +788,7 @@ def atomic_output_files(paths, *, overwrite=False, inputs=(), what="--out"):
                 for tmp in tmps.values():
                     _rmtree(tmp)
                 if _about_output(e, *tmps, *targets):
-                    raise UserError(f"{what} {targets[0]}: cannot write the output ({_reason(e)})") from None
+                    raise UserError(f"cannot write the output ({_reason(e)})", argument=what, value=targets[0]) from None
                 raise
             except BaseException:
                 for tmp in tmps.values():

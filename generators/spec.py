@@ -245,11 +245,11 @@ def apply_override(spec: dict, item: str) -> None:
     {'film': {'thickness': {'profile': 'constant', 'value': 450}}}
     """
     if not isinstance(item, str) or "=" not in item:
-        raise UserError(f"--set {item!r}: expected KEY=VALUE, e.g. film.thickness.value=450")
+        raise UserError(f"expected KEY=VALUE, e.g. film.thickness.value=450", argument="set", value=repr(item))
     key, text = item.split("=", 1)
     parts = [p.strip() for p in key.strip().split(".")]
     if not all(parts):
-        raise UserError(f"--set {item!r}: malformed key {key!r}")
+        raise UserError(f"malformed key {key!r}", argument="set", value=repr(item))
     value = _parse_value(text)
     node = spec
     for i, part in enumerate(parts[:-1]):
@@ -257,7 +257,7 @@ def apply_override(spec: dict, item: str) -> None:
         if child is None:
             child = node[part] = {}
         elif not isinstance(child, dict):
-            raise UserError(f"--set {item!r}: '{'.'.join(parts[:i + 1])}' is not a table")
+            raise UserError(f"'{'.'.join(parts[:i + 1])}' is not a table", argument="set", value=repr(item))
         node = child
     last = parts[-1]
     # A relative file named on the command line is relative to the current folder.
@@ -273,7 +273,7 @@ def apply_override(spec: dict, item: str) -> None:
     if parts == ["rig", "wavelengths_nm"] or not isinstance(node.get(last), dict) or isinstance(value, dict):
         node[last] = value
     else:
-        raise UserError(f"--set {item!r}: '{key}' is a table; set one of its keys instead")
+        raise UserError(f"'{key}' is a table; set one of its keys instead", argument="set", value=repr(item))
 
 
 

@@ -91,7 +91,7 @@ def capture_from_dataset(dataset, options) -> RGBCapture:
     if options.mask is not None:
         mask = np.asarray(options.mask, dtype=bool)
         if mask.shape != shape:
-            raise UserError(f"--mask: shape {mask.shape} does not match the images {shape}")
+            raise UserError(f"shape {mask.shape} does not match the images {shape}", argument="mask")
     else:
         S0 = fit_stokes(np.stack([images[a] for a in sorted(images)]), sorted(images))[0]
         mask = mask_from_intensity(np.clip(S0.mean(axis=-1), 0.0, None))
@@ -101,5 +101,35 @@ def capture_from_dataset(dataset, options) -> RGBCapture:
         raise UserError(f"{'--mask' if options.mask is not None else exr_path}: the object mask is empty")
     info = {"film_ior": index_to_json(film.layers[0].material),
             "substrate_ior": film.effective_substrate_index(),
-            "thickness_range_nm": [float(lo), float(hi)]}
+            "thickness_range_nm": [float(lo), float(hi)],
+            "thickness_range_given": options.thickness_range_nm is not None}
     return RGBCapture(images, model, mask, (float(lo), float(hi)), dataset.pixel_size or 1.0, info)
+
+
+#: share of the object's pixels whose thickness order stays open, or that sit at the top of the
+#: default range, above which the RGB methods warn that the film may lie outside it
+DOUBTFUL_SHARE = 0.2
+
+
+def warn_if_outside_range(capture: RGBCapture, thickness_nm, valid, order_open: float | None = None) -> bool:
+    """Warn, once, when a film looks thicker than the default range the RGB search covered.
+
+    Colour alone cannot order thick films: past about a micron the fringes of neighbouring
+    orders look alike, so a film outside the searched range is matched to a wrong thickness
+    inside it. When the range was not given (``--thickness-range``) and either a share
+    :data:`DOUBTFUL_SHARE` of the pixels leave their order open (``order_open``, the method's
+    own measure) or sit in the top 5 % of the range, the warning names ``--thickness-range``
+    and a spectral capture. Returns whether it warned.
+    """
+    if capture.info.get("thickness_range_given", True):
+        return False
+    lo, hi = capture.thickness_range_nm
+    d = np.asarray(thickness_nm, dtype=np.float64)[np.asarray(valid, dtype=bool)]
+    at_top = float(np.mean(d > hi - 0.05 * (hi - lo))) if d.size else 0.0
+    if max(at_top, order_open or 0.0) < DOUBTFUL_SHARE:
+        return False
+    warnings.warn(f"rgb: the film may lie outside the default thickness range {lo:g}-{hi:g} nm "
+                  f"({100 * max(at_top, order_open or 0.0):.0f} % of the pixels fit it poorly or sit at its "
+                  f"top); colour alone cannot order thick films: give --thickness-range MIN MAX, or use a "
+                  f"spectral capture", ThinfilmWarning, stacklevel=2)
+    return True

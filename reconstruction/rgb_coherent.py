@@ -313,6 +313,9 @@ def reconstruct_coherent(capture: RGBCapture, progress: bool = False, rounds: in
     ok = np.isfinite(chi2) & (chi2 < max_chi2)
     valid = np.zeros(mask.shape, dtype=bool)
     valid[mask] = ok
+    from .rgb_capture import warn_if_outside_range
+
+    warn_if_outside_range(capture, thick[mask], ok, open_orders)
     info = {**capture.info, "timings_s": timings, "noise_sigma": sigma, "thickness_order_open": open_orders,
             "azimuth_sign_by_prior": az_info["sign_by_prior"],
             "notes": "coherent Airy model inverted jointly per pixel (zenith, azimuth, thickness), "

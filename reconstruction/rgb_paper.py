@@ -128,6 +128,9 @@ def reconstruct_kobayashi2023(capture: RGBCapture, progress: bool = False) -> Es
 
     normals = angles_to_normals(zenith, np.nan_to_num(azimuth))
     valid = mask & np.isfinite(zenith) & np.isfinite(azimuth)
+    from .rgb_capture import warn_if_outside_range
+
+    warn_if_outside_range(capture, thickness, valid)
     info = {**capture.info, "brewster_angle_deg": float(brewster), "timings_s": timings,
             "notes": "paper Sec. 4 as published: incoherent DOP model (Eqs. 11-16), "
                      "boundary azimuth propagation, RGB table thickness search"}

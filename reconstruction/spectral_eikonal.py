@@ -29,13 +29,13 @@ from thinfilm.core.io import Estimate
 from . import eikonal as _eik
 from . import spectral_model as _sm
 from .peaks import PEAK_NONE, PEAK_OK, PEAK_SEVERAL
-from .spectral_fit import _fit_no_peak, _levenberg_marquardt, _sigma_theta, _thickness_at, \
-    estimate_film_ior_either_side, extrema_angles, initial_thickness
+from .spectral_fit import angle_thickness_lm, estimate_film_ior_either_side, extrema_angles, fit_no_peak, \
+    initial_thickness, sigma_theta, thickness_at, thickness_limits
 
-__all__ = ["reconstruct_eikonal"]
+__all__ = ["reconstruct_eikonal", "unfold_magnitude"]
 
 
-def _unfold_magnitude(observed, sigma):
+def unfold_magnitude(observed, sigma):
     """The ``μ >= 0`` whose folded normal ``|N(μ, σ²)|`` has mean ``observed`` (0 below the mean
     of ``|N(0, σ²)|``, σ sqrt(2/π)); ``observed`` itself beyond 8 σ, where the fold is nil."""
     from scipy.special import erf
@@ -50,17 +50,25 @@ def _unfold_magnitude(observed, sigma):
 
 
 def reconstruct_eikonal(cube, wavelengths_nm, substrate_ior, mask, smoothness=10.0, angle_floor_deg=0.2,
-                        condition_scale=2.0, noise_scale=1.0, misfit=3.0, direction_weight=0.1, anchor_weight=1.0):
-    """The default method (see the module docstring)."""
+                        condition_scale=2.0, noise_scale=1.0, misfit=3.0, direction_weight=0.1, anchor_weight=1.0,
+                        thickness_range_nm=None, band_fwhm_nm=0.0):
+    """The s-spectrum method (see the module docstring).
+
+    ``thickness_range_nm``: the film thicknesses considered (default
+    :data:`thinfilm.core.bands.SPECTRAL_THICKNESS_RANGE_NM`, less where the bands of width
+    ``band_fwhm_nm`` cannot resolve the fringes: then one warning says so).
+    """
     wl = np.asarray(wavelengths_nm, dtype=np.float64)
     n3 = float(substrate_ior)
+    limits = thickness_limits(wl, thickness_range_nm, band_fwhm_nm)
     t = {}
     # 1. the film index, once for the object, below or above the substrate's (which side
     # holds is read from the spectra: the extrema at the bare substrate's reflectance are
     # maxima below it, minima above it)
     t0 = time.perf_counter()
     spectra = np.asarray(np.asarray(cube)[mask], dtype=np.float64)
-    n2, n2_info = estimate_film_ior_either_side(spectra, wl, n3)
+    n2, n2_info = estimate_film_ior_either_side(spectra, wl, n3, limits=limits)
+    limits.warn_if_cut(n2)
     t["film_ior"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     pk, theta_peak = extrema_angles(spectra, wl, n3, n2_info["film_ior_above_substrate"])
@@ -76,18 +84,18 @@ def reconstruct_eikonal(cube, wavelengths_nm, substrate_ior, mask, smoothness=10
     has = np.isfinite(theta_peak)
     d0 = np.full(theta_peak.shape, np.nan)
     if has.any():
-        d0[has] = initial_thickness(spectra[has], theta_peak[has], pk.wavelength_nm[has], n2, n3, wl)
+        d0[has] = initial_thickness(spectra[has], theta_peak[has], pk.wavelength_nm[has], n2, n3, wl, limits=limits)
     th0 = np.where(has, theta_peak, 0.0)
     # pixels with a peak first; they seed the others
     th_fit = np.zeros_like(th0)
     d_fit = np.zeros_like(th0)
     neq = np.zeros((th0.size, 6))  # normal equations at the fit, [a11 a12 a22 g1 g2 sse]
     if has.any():
-        th_fit[has], d_fit[has], neq[has] = _levenberg_marquardt(
+        th_fit[has], d_fit[has], neq[has] = angle_thickness_lm(
             spectra[has], th0[has], d0[has], n2, n3, wl, stokes_noise=stokes_noise[has])
     none = ~has
     if none.any():
-        th_fit[none], d_fit[none], neq[none] = _fit_no_peak(
+        th_fit[none], d_fit[none], neq[none] = fit_no_peak(
             spectra, mask, has, th_fit, d_fit, n2, n3, wl, stokes_noise, misfit=misfit)
     # a pixel whose fit from its peak stays far above the noise read a wrong peak (one of
     # several, or a noise bump), and so a wrong order and angle (thickness errors of a
@@ -101,13 +109,13 @@ def reconstruct_eikonal(cube, wavelengths_nm, substrate_ior, mask, smoothness=10
     poor = has & (neq[:, 5] > misfit * wl.size * np.maximum(stokes_noise, 1e-6) ** 2)
     if poor.any() and (has & ~poor).any():
         redo = poor | none
-        th_r, d_r, neq_r = _fit_no_peak(spectra, mask, has & ~poor, th_fit, d_fit, n2, n3, wl, stokes_noise,
+        th_r, d_r, neq_r = fit_no_peak(spectra, mask, has & ~poor, th_fit, d_fit, n2, n3, wl, stokes_noise,
                                         misfit=misfit, which=redo)
         better = neq_r[:, 5] < neq[redo, 5]
         idx = np.nonzero(redo)[0][better]
         th_fit[idx], d_fit[idx], neq[idx] = th_r[better], d_r[better], neq_r[better]
     stats["refit_poor_peak"] = int(poor.sum())
-    sig = _sigma_theta(neq_surf, wl.size)
+    sig = sigma_theta(neq_surf, wl.size)
     t["fit_angle_thickness"] = time.perf_counter() - t0
 
     # 3. the surface as a whole
@@ -133,7 +141,7 @@ def reconstruct_eikonal(cube, wavelengths_nm, substrate_ior, mask, smoothness=10
     # the refinement's target slope: a measured angle is a magnitude, so near normal incidence
     # (σ comparable to the slope) its noise only ever adds to it; the target is the slope
     # whose folded-normal mean is the measurement
-    slope_t = np.where(mask, _unfold_magnitude(slope, np.where(mask, sig_slope, 1.0)), 0.0)
+    slope_t = np.where(mask, unfold_magnitude(slope, np.where(mask, sig_slope, 1.0)), 0.0)
     # started from the silhouette (no occluding band: flat faces meeting a ground edge), the
     # surface keeps the fast march's gradient directions and the silhouette's height; a dome
     # started from its steep band is smoothed freely (the march's directions are poor where
@@ -159,12 +167,13 @@ def reconstruct_eikonal(cube, wavelengths_nm, substrate_ior, mask, smoothness=10
 
     # 4. thickness at the final angle
     t0 = time.perf_counter()
-    d_fin = _thickness_at(spectra, theta_fin[mask], th_fit, d_fit, neq, n2, n3, wl, stokes_noise)
+    d_fin = thickness_at(spectra, theta_fin[mask], th_fit, d_fit, neq, n2, n3, wl, stokes_noise)
     t["thickness"] = time.perf_counter() - t0
     thickness = np.full(mask.shape, np.nan)
     thickness[mask] = d_fin
     valid = mask & np.isfinite(thickness) & np.isfinite(z)
-    info = {"peaks": stats, "timings_s": t, **n2_info,
-            "seeds": seed_kind, "smoothness": smoothness}
+    info = {"peaks": stats, "timings_s": t, **n2_info, "capture": "s",
+            "seeds": seed_kind, "smoothness": smoothness,
+            "thickness_range_nm": [limits.lo, limits.upper(n2)]}
     return Estimate(normals=normals, thickness_nm=thickness, valid=valid, film_ior=float(n2),
                     substrate_ior=float(substrate_ior), height=z, info=info)

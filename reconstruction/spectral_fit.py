@@ -6,11 +6,13 @@
   spectrum (the shared solver of :mod:`.lm`), with the variance of θ;
 * :func:`estimate_film_ior`: one film index for the object (the (n2, m) search pooled over
   pixels, then a joint Gauss-Newton over the shared ``n2`` and every pixel's (θ, d));
-* the fits of pixels without a peak (:func:`_fit_no_peak`) and the thickness at a new
-  angle (:func:`_thickness_at`).
+* the fits of pixels without a peak (:func:`fit_no_peak`) and the thickness at a new
+  angle (:func:`thickness_at`).
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 from scipy import ndimage
@@ -20,17 +22,77 @@ from thinfilm.core.errors import UserError
 from . import spectral_model as _sm
 from .lm import levenberg_marquardt
 
-__all__ = ["MAX_THICKNESS_NM", "FILM_IOR_MAX", "fit_angle_thickness", "initial_thickness", "estimate_film_ior",
-           "estimate_film_ior_either_side", "extrema_angles"]
+__all__ = ["MAX_THICKNESS_NM", "FILM_IOR_MAX", "ThicknessRange", "thickness_limits", "fit_angle_thickness",
+           "initial_thickness", "estimate_film_ior", "estimate_film_ior_either_side", "extrema_angles",
+           "film_ior_grid", "order_candidates", "sigma_theta", "angle_thickness_lm", "init_no_peak",
+           "fit_no_peak", "thickness_at", "joint_film_ior", "pooled_search"]
 
+#: the paper's thickness span (its Fig. 5): the largest thickness of the published method's
+#: (n2, m) search when no range is given
 MAX_THICKNESS_NM = 1000.0
+
+
+@dataclass(frozen=True)
+class ThicknessRange:
+    """The film thicknesses a spectral fit considers.
+
+    Attributes
+    ----------
+    lo, hi : the range asked for (nm): ``--thickness-range``, else
+        :data:`thinfilm.core.bands.SPECTRAL_THICKNESS_RANGE_NM`.
+    max_optical_nm : the largest optical thickness ``n d`` the bands resolve
+        (:func:`thinfilm.core.bands.resolved_optical_thickness_nm`).
+    given : whether the range was given (else it is the default).
+    """
+
+    lo: float
+    hi: float
+    max_optical_nm: float = float("inf")
+    given: bool = False
+
+    def upper(self, film_ior: float) -> float:
+        """The largest thickness considered for a film of index ``film_ior``."""
+        return float(min(self.hi, self.max_optical_nm / max(float(film_ior), 1e-6)))
+
+    def warn_if_cut(self, film_ior: float, what: str = "spectral") -> bool:
+        """One warning when the bands cannot resolve the whole range given at ``film_ior``
+        (the default range is cut silently: its top is *what the bands resolve*, recorded in
+        the estimate's ``thickness_range_nm``); returns whether the range is cut."""
+        top = self.upper(film_ior)
+        if top >= self.hi:
+            return False
+        if not self.given:
+            return True
+        import warnings
+
+        from thinfilm.core.errors import ThinfilmWarning
+
+        asked = "the thickness range" if self.given else "the default thickness range"
+        warnings.warn(f"{what}: the bands resolve interference fringes up to an optical thickness of "
+                      f"{self.max_optical_nm:.0f} nm, {top:.0f} nm at the film index {film_ior:.3f}; thicker "
+                      f"films of {asked} ({self.lo:g}-{self.hi:g} nm) are not considered (a finer spectral "
+                      f"sampling resolves them)", ThinfilmWarning, stacklevel=3)
+        return True
+
+
+def thickness_limits(wavelengths_nm, thickness_range_nm=None, band_fwhm_nm: float = 0.0) -> ThicknessRange:
+    """The :class:`ThicknessRange` of a spectral capture: ``thickness_range_nm`` (min, max) or
+    the default, with what the bands (centres ``wavelengths_nm``, width ``band_fwhm_nm``)
+    resolve."""
+    from thinfilm.core.bands import SPECTRAL_THICKNESS_RANGE_NM, resolved_optical_thickness_nm
+
+    given = thickness_range_nm is not None
+    lo, hi = (float(v) for v in (thickness_range_nm if given else SPECTRAL_THICKNESS_RANGE_NM))
+    if not (np.isfinite(lo) and np.isfinite(hi) and 0.0 <= lo < hi):
+        raise UserError(f"expected 0 <= MIN < MAX in nm, got {lo:g} {hi:g}", argument="thickness_range_nm")
+    return ThicknessRange(lo, hi, resolved_optical_thickness_nm(wavelengths_nm, band_fwhm_nm), given)
 
 
 #: largest film index the default method considers (above the substrate's: up to here)
 FILM_IOR_MAX = 2.6
 
 
-def _film_ior_grid(substrate_ior, above=False, step=0.01):
+def film_ior_grid(substrate_ior, above=False, step=0.01):
     """Film indices to search: 1.00, 1.01, ... below ``n3`` (the paper's grid), or, with
     ``above``, from just above ``n3`` up to :data:`FILM_IOR_MAX`."""
     if not above:
@@ -41,19 +103,22 @@ def _film_ior_grid(substrate_ior, above=False, step=0.01):
     return np.round(substrate_ior + step * np.arange(1, k + 1), 6)
 
 
-def _order_candidates(theta, peak_wl, n2_values, max_thickness_nm=MAX_THICKNESS_NM):
+def order_candidates(theta, peak_wl, n2_values, max_thickness_nm=MAX_THICKNESS_NM, min_thickness_nm=0.0,
+                     max_optical_nm=float("inf")):
     """Eq. 29 thickness candidates ``d = m λ / (2 sqrt(n2² - sin² θ))`` for every n2 and m >= 1
-    with ``d < max_thickness_nm``: (N, K) thickness and film index, NaN-padded."""
+    with ``min_thickness_nm <= d < max_thickness_nm`` and ``n2 d <= max_optical_nm`` (what the
+    bands resolve): (N, K) thickness and film index, NaN-padded."""
     s2 = np.sin(theta) ** 2
     n2 = np.asarray(n2_values, dtype=np.float64)
     q2 = np.sqrt(np.maximum(n2[None, :] ** 2 - s2[:, None], 1e-12))  # (N, G)
     unit = peak_wl[:, None] / (2.0 * q2)  # d for m = 1
+    top = np.minimum(float(max_thickness_nm), float(max_optical_nm) / n2)[None, :]
     with np.errstate(invalid="ignore"):
-        m_max = np.nan_to_num(np.ceil(max_thickness_nm / unit) - 1, nan=0).astype(int)
+        m_max = np.nan_to_num(np.ceil(top / unit) - 1, nan=0).astype(int)
     M = max(1, int(np.max(m_max, initial=1)))
     m = np.arange(1, M + 1)
     d = unit[:, :, None] * m[None, None, :]  # (N, G, M)
-    d = np.where(m[None, None, :] <= m_max[:, :, None], d, np.nan)
+    d = np.where((m[None, None, :] <= m_max[:, :, None]) & (d >= min_thickness_nm), d, np.nan)
     n2b = np.broadcast_to(n2[None, :, None], d.shape)
     return d.reshape(d.shape[0], -1), n2b.reshape(d.shape[0], -1), m
 
@@ -80,12 +145,12 @@ def fit_angle_thickness(spectra, theta0, thickness0, film_ior, substrate_ior, wa
     spectrum does not constrain θ).
     """
     S = np.asarray(spectra, dtype=np.float64)
-    th, d, cur = _levenberg_marquardt(S, theta0, thickness0, film_ior, substrate_ior, wavelengths_nm,
+    th, d, cur = angle_thickness_lm(S, theta0, thickness0, film_ior, substrate_ior, wavelengths_nm,
                                       iterations, fit_theta, theta_max_deg, stokes_noise)
-    return th, d, cur[:, 5], _sigma_theta(cur, S.shape[1], fit_theta)
+    return th, d, cur[:, 5], sigma_theta(cur, S.shape[1], fit_theta)
 
 
-def _sigma_theta(cur, bands, fit_theta=True):
+def sigma_theta(cur, bands, fit_theta=True):
     """Standard deviation of θ from the normal equations ``cur`` ([a11 a12 a22 g1 g2 sse])."""
     n = cur.shape[0]
     if not fit_theta:
@@ -98,7 +163,7 @@ def _sigma_theta(cur, bands, fit_theta=True):
     return np.where(np.isfinite(sigma), sigma, np.inf)
 
 
-def _levenberg_marquardt(S, theta0, thickness0, film_ior, substrate_ior, wavelengths_nm,
+def angle_thickness_lm(S, theta0, thickness0, film_ior, substrate_ior, wavelengths_nm,
                          iterations=12, fit_theta=True, theta_max_deg=89.5, stokes_noise=None):
     """The iterations of :func:`fit_angle_thickness` (the shared solver of :mod:`.lm`): final
     (θ, d) and, per pixel, the normal equations at that point, ``[a11 a12 a22 g1 g2 sse]``
@@ -154,19 +219,24 @@ def _levenberg_marquardt(S, theta0, thickness0, film_ior, substrate_ior, wavelen
 
 
 def initial_thickness(spectra, theta_rad, peak_wl_nm, film_ior, substrate_ior, wavelengths_nm,
-                      max_thickness_nm=1.5 * MAX_THICKNESS_NM):
+                      max_thickness_nm=1.5 * MAX_THICKNESS_NM, limits: ThicknessRange | None = None):
     """Starting thickness per pixel for a known film index: the best order m of Eq. 29.
 
     Returns (N,) thickness in nm (the candidate ``m λ_peak / (2 sqrt(n2² - sin² θ))`` whose
-    spectrum fits best).
+    spectrum fits best). With ``limits`` the candidates span the :class:`ThicknessRange` at
+    ``film_ior`` (and a tenth beyond its top, so that a film at the top finds its order)
+    instead of ``max_thickness_nm``.
     """
-    dc, n2c, _ = _order_candidates(np.asarray(theta_rad, float), np.asarray(peak_wl_nm, float),
-                                   [film_ior], max_thickness_nm)
+    lo, opt = 0.0, float("inf")
+    if limits is not None:
+        lo, max_thickness_nm = limits.lo, 1.1 * limits.upper(film_ior)
+    dc, n2c, _ = order_candidates(np.asarray(theta_rad, float), np.asarray(peak_wl_nm, float),
+                                  [film_ior], max_thickness_nm, lo, opt)
     e = _sm.grid_sse(spectra, theta_rad, dc, n2c, substrate_ior, wavelengths_nm)
     return dc[np.arange(dc.shape[0]), np.argmin(e, axis=1)]
 
 
-def _joint_film_ior(S, th, d, n2, n3, wl, iterations=15, bounds=None):
+def joint_film_ior(S, th, d, n2, n3, wl, iterations=15, bounds=None):
     """Gauss-Newton over one shared n2 and every pixel's (θ, d) (Schur complement on n2);
     ``S`` holds s spectra (N, B) or s then p spectra (N, 2 B); n2 stays within ``bounds``
     (default: below the substrate's index)."""
@@ -239,8 +309,8 @@ def estimate_film_ior(spectra, theta_rad, peak_wl_nm, substrate_ior, wavelengths
     if n > max_pixels:
         sel = np.linspace(0, n - 1, max_pixels).round().astype(int)
         S, th, lam = S[sel], th[sel], lam[sel]
-    grid = _film_ior_grid(substrate_ior)
-    d, n2, _ = _order_candidates(th, lam, grid)
+    grid = film_ior_grid(substrate_ior)
+    d, n2, _ = order_candidates(th, lam, grid)
     sse = _sm.grid_sse(S, th, d, n2, substrate_ior, wavelengths_nm)
     G = grid.size
     sse_g = sse.reshape(S.shape[0], G, -1)
@@ -252,7 +322,7 @@ def estimate_film_ior(spectra, theta_rad, peak_wl_nm, substrate_ior, wavelengths
     rows = np.arange(S.shape[0])
     d0 = d.reshape(S.shape[0], G, -1)[rows, g_best, best_m[:, g_best]]
     ok = np.isfinite(d0)
-    n2_fit, _, _, _ = _joint_film_ior(S[ok], th[ok], d0[ok], n2_grid, substrate_ior,
+    n2_fit, _, _, _ = joint_film_ior(S[ok], th[ok], d0[ok], n2_grid, substrate_ior,
                                       np.asarray(wavelengths_nm, dtype=np.float64))
     return n2_fit, {"film_ior_grid": n2_grid, "film_ior_pixels": int(ok.sum())}
 
@@ -273,10 +343,14 @@ def extrema_angles(spectra_s, wavelengths_nm, substrate_ior, above):
     return pk, _sm.angle_from_peak(val, substrate_ior)
 
 
-def _pooled_search(S, th, lam, n3, wl, grid):
+def pooled_search(S, th, lam, n3, wl, grid, limits: ThicknessRange | None = None):
     """The (n2, m) search of Eqs. 28-30 summed over pooled pixels: total SSE per grid value,
-    and each pixel's best thickness at every grid value."""
-    d, n2, _ = _order_candidates(th, lam, grid)
+    and each pixel's best thickness at every grid value (orders within ``limits``, else below
+    :data:`MAX_THICKNESS_NM`)."""
+    if limits is None:
+        d, n2, _ = order_candidates(th, lam, grid)
+    else:
+        d, n2, _ = order_candidates(th, lam, grid, limits.hi, limits.lo, limits.max_optical_nm)
     sse = _sm.grid_sse(S, th, d, n2, n3, wl)
     G = grid.size
     sse_g = sse.reshape(S.shape[0], G, -1)
@@ -288,7 +362,8 @@ def _pooled_search(S, th, lam, n3, wl, grid):
 
 
 def estimate_film_ior_either_side(spectra, wavelengths_nm, substrate_ior, max_pixels=160,
-                                  angle_range_deg=(20.0, 70.0), coarse_step=0.04, max_candidates=4000):
+                                  angle_range_deg=(20.0, 70.0), coarse_step=0.04, max_candidates=4000,
+                                  limits: ThicknessRange | None = None):
     """One film index for the object, below or above the substrate's, from the spectra.
 
     Which side holds is read from the physics of the spectra: below the substrate's index the
@@ -304,6 +379,8 @@ def estimate_film_ior_either_side(spectra, wavelengths_nm, substrate_ior, max_pi
     spectra : (N, B) s spectra, or (N, 2 B) s then p spectra (a Stokes capture: both fitted).
     max_pixels : pixels pooled per hypothesis (evenly spread over those that qualify).
     max_candidates : pixels examined for extrema (evenly spread over the object).
+    limits : the :class:`ThicknessRange` of the orders searched (default: below
+        :data:`MAX_THICKNESS_NM`).
 
     Returns
     -------
@@ -345,14 +422,14 @@ def estimate_film_ior_either_side(spectra, wavelengths_nm, substrate_ior, max_pi
             idx = idx[np.linspace(0, idx.size - 1, max_pixels).round().astype(int)]
         pk, th = hyp[above][0], hyp[above][1]
         S, t, lam = S_all[idx], th[idx], pk.wavelength_nm[idx]
-        grid = _film_ior_grid(substrate_ior, above, coarse_step)
+        grid = film_ior_grid(substrate_ior, above, coarse_step)
         if grid.size == 0:
             continue
-        coarse, _ = _pooled_search(S, t, lam, substrate_ior, wl, grid)
+        coarse, _ = pooled_search(S, t, lam, substrate_ior, wl, grid, limits)
         g0 = float(grid[int(np.argmin(coarse))])
-        fine = _film_ior_grid(substrate_ior, above, 0.01)
+        fine = film_ior_grid(substrate_ior, above, 0.01)
         fine = fine[np.abs(fine - g0) <= coarse_step + 1e-9]
-        total, d_best = _pooled_search(S, t, lam, substrate_ior, wl, fine)
+        total, d_best = pooled_search(S, t, lam, substrate_ior, wl, fine, limits)
         k = int(np.argmin(total))
         results[above] = (float(total[k]) / idx.size, float(fine[k]), S, t, d_best[:, k])
     if not results:
@@ -362,7 +439,7 @@ def estimate_film_ior_either_side(spectra, wavelengths_nm, substrate_ior, max_pi
     _, n2_grid, S, t, d0 = results[above]
     ok = np.isfinite(d0)
     bounds = (substrate_ior + 1e-3, FILM_IOR_MAX) if above else (1.0, substrate_ior - 1e-3)
-    n2_fit, _, _, sse = _joint_film_ior(S[ok], t[ok], d0[ok], n2_grid, substrate_ior, wl, bounds=bounds)
+    n2_fit, _, _, sse = joint_film_ior(S[ok], t[ok], d0[ok], n2_grid, substrate_ior, wl, bounds=bounds)
     mirrored = None
     if not above:
         # Near normal incidence a film n2 below the substrate and one of n3 / n2 give the same
@@ -372,7 +449,7 @@ def estimate_film_ior_either_side(spectra, wavelengths_nm, substrate_ior, max_pi
         n2_m = substrate_ior / n2_fit
         if 1.0 < n2_m < substrate_ior - 1e-3 and abs(n2_m - n2_fit) > 0.02:
             d_m = d0[ok] * n2_fit / n2_m
-            n2_mf, _, _, sse_m = _joint_film_ior(S[ok], t[ok], d_m, n2_m, substrate_ior, wl, bounds=bounds)
+            n2_mf, _, _, sse_m = joint_film_ior(S[ok], t[ok], d_m, n2_m, substrate_ior, wl, bounds=bounds)
             from .peaks import band_noise
 
             sigma2 = float(np.median(band_noise(S[ok, :b]))) ** 2
@@ -387,7 +464,7 @@ def estimate_film_ior_either_side(spectra, wavelengths_nm, substrate_ior, max_pi
 
 
 
-def _init_no_peak(S, n2, n3, wl, d_guess):
+def init_no_peak(S, n2, n3, wl, d_guess):
     """Coarse (θ, d) grid for pixels without a peak: θ in 3° steps, d ± 60 nm (15 nm steps)
     around a guess; Levenberg-Marquardt refines from there."""
     thetas = np.radians(np.arange(0.0, 89.0, 3.0))
@@ -403,14 +480,14 @@ def _init_no_peak(S, n2, n3, wl, d_guess):
     return thetas[k // offs.size], dd[np.arange(n), k % offs.size]
 
 
-def _fit_no_peak(spectra, mask, has, th_fit, d_fit, n2, n3, wl, stokes_noise, misfit=3.0, which=None):
+def fit_no_peak(spectra, mask, has, th_fit, d_fit, n2, n3, wl, stokes_noise, misfit=3.0, which=None):
     """(θ, d) of the object pixels without a peak (``~has``, or the pixels ``which``), by
     Levenberg-Marquardt started from the nearest pixel with a peak (the surface and the film
     are continuous); pixels whose fit stays ``misfit`` times above the noise's expected
-    residual are restarted from the coarse grid of :func:`_init_no_peak` and keep the better
+    residual are restarted from the coarse grid of :func:`init_no_peak` and keep the better
     fit.
 
-    Returns θ, d and the normal equations (as :func:`_levenberg_marquardt`) of those pixels.
+    Returns θ, d and the normal equations (as :func:`angle_thickness_lm`) of those pixels.
     """
     none = ~has if which is None else np.asarray(which, dtype=bool)
     S = spectra[none]
@@ -422,18 +499,18 @@ def _fit_no_peak(spectra, mask, has, th_fit, d_fit, n2, n3, wl, stokes_noise, mi
         src = img[ir, ic][mask][none]
         t_start, d_start = th_fit[src], d_fit[src]
     else:
-        t_start, d_start = _init_no_peak(S, n2, n3, wl, np.full(S.shape[0], 400.0))
-    th, d, cur = _levenberg_marquardt(S, t_start, d_start, n2, n3, wl, stokes_noise=nz)
+        t_start, d_start = init_no_peak(S, n2, n3, wl, np.full(S.shape[0], 400.0))
+    th, d, cur = angle_thickness_lm(S, t_start, d_start, n2, n3, wl, stokes_noise=nz)
     bad = np.nonzero(cur[:, 5] > misfit * wl.size * np.maximum(nz, 1e-6) ** 2)[0]
     if has.any() and bad.size:
-        tg, dg = _init_no_peak(S[bad], n2, n3, wl, d_start[bad])
-        th_b, d_b, cur_b = _levenberg_marquardt(S[bad], tg, dg, n2, n3, wl, stokes_noise=nz[bad])
+        tg, dg = init_no_peak(S[bad], n2, n3, wl, d_start[bad])
+        th_b, d_b, cur_b = angle_thickness_lm(S[bad], tg, dg, n2, n3, wl, stokes_noise=nz[bad])
         better = cur_b[:, 5] < cur[bad, 5]
         th[bad[better]], d[bad[better]], cur[bad[better]] = th_b[better], d_b[better], cur_b[better]
     return th, d, cur
 
 
-def _thickness_at(spectra, theta, th_fit, d_fit, neq, n2, n3, wl, stokes_noise, linear_deg=0.25):
+def thickness_at(spectra, theta, th_fit, d_fit, neq, n2, n3, wl, stokes_noise, linear_deg=0.25):
     """Thickness per pixel at new angles ``theta`` (fitted at ``th_fit``, ``d_fit``).
 
     Near the fitted angle the best thickness follows it linearly, ``d(θ) = d_fit - a12/a22 Δθ``
@@ -448,7 +525,7 @@ def _thickness_at(spectra, theta, th_fit, d_fit, neq, n2, n3, wl, stokes_noise, 
     d = np.where(np.abs(shift) <= 10.0, np.maximum(d_fit + shift, 0.0), d_fit)
     redo = np.nonzero(np.abs(dth) > np.radians(linear_deg))[0]
     if redo.size:
-        _, d[redo], _ = _levenberg_marquardt(spectra[redo], theta[redo], d[redo], n2, n3, wl,
+        _, d[redo], _ = angle_thickness_lm(spectra[redo], theta[redo], d[redo], n2, n3, wl,
                                              iterations=6, fit_theta=False,
                                              stokes_noise=stokes_noise[redo])
     return d

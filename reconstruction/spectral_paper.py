@@ -22,14 +22,16 @@ from thinfilm.core.io import Estimate
 from . import eikonal as _eik
 from . import spectral_model as _sm
 from .spectral_checks import check_peak_assumption, peaks_of
-from .spectral_fit import MAX_THICKNESS_NM, _film_ior_grid, _order_candidates
+from .spectral_fit import MAX_THICKNESS_NM, film_ior_grid, order_candidates, thickness_limits
 
 __all__ = ["kobayashi_search", "reconstruct_kobayashi"]
 
 
 def kobayashi_search(spectra, theta_rad, peak_wl_nm, substrate_ior, wavelengths_nm,
-                     max_thickness_nm=MAX_THICKNESS_NM):
-    """The paper's per-pixel search (Eqs. 28–30) over ``n2`` ∈ {1.00, 1.01, …} < n3 and orders m.
+                     max_thickness_nm=MAX_THICKNESS_NM, limits=None):
+    """The paper's per-pixel search (Eqs. 28–30) over ``n2`` ∈ {1.00, 1.01, …} < n3 and orders m
+    (thickness below ``max_thickness_nm``, or within the
+    :class:`~.spectral_fit.ThicknessRange` ``limits``).
 
     Returns
     -------
@@ -45,8 +47,11 @@ def kobayashi_search(spectra, theta_rad, peak_wl_nm, substrate_ior, wavelengths_
     ok = np.isfinite(th) & np.isfinite(lam)
     if not ok.any():
         return out_n2, out_d, out_e
-    grid = _film_ior_grid(substrate_ior)
-    d, n2, _ = _order_candidates(th[ok], lam[ok], grid, max_thickness_nm)
+    grid = film_ior_grid(substrate_ior)
+    if limits is None:
+        d, n2, _ = order_candidates(th[ok], lam[ok], grid, max_thickness_nm)
+    else:
+        d, n2, _ = order_candidates(th[ok], lam[ok], grid, limits.hi, limits.lo, limits.max_optical_nm)
     sse = _sm.grid_sse(S[ok], th[ok], d, n2, substrate_ior, wavelengths_nm)
     best = np.argmin(sse, axis=1)
     rows = np.arange(best.size)
@@ -56,8 +61,11 @@ def kobayashi_search(spectra, theta_rad, peak_wl_nm, substrate_ior, wavelengths_
     return out_n2, out_d, out_e
 
 
-def reconstruct_kobayashi(cube, wavelengths_nm, substrate_ior, mask):
-    """The paper's method as published (see the module docstring)."""
+def reconstruct_kobayashi(cube, wavelengths_nm, substrate_ior, mask, thickness_range_nm=None, band_fwhm_nm=0.0):
+    """The paper's method as published (see the module docstring), its (n2, m) search over
+    ``thickness_range_nm`` (default: the paper's span, up to :data:`.spectral_fit.MAX_THICKNESS_NM`;
+    cut to what the bands resolve)."""
+    limits = thickness_limits(wavelengths_nm, thickness_range_nm or (0.0, MAX_THICKNESS_NM), band_fwhm_nm)
     t = {}
     t0 = time.perf_counter()
     spectra, pk, stats = peaks_of(cube, mask, wavelengths_nm)
@@ -72,13 +80,17 @@ def reconstruct_kobayashi(cube, wavelengths_nm, substrate_ior, mask):
     t["normals_strips"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    n2_px, d_px, _ = kobayashi_search(spectra, theta, pk.wavelength_nm, substrate_ior, wavelengths_nm)
+    n2_px, d_px, _ = kobayashi_search(spectra, theta, pk.wavelength_nm, substrate_ior, wavelengths_nm,
+                                      limits=limits)
     t["search_n2_m"] = time.perf_counter() - t0
     film_ior = float(np.nanmedian(n2_px)) if np.isfinite(n2_px).any() else float("nan")
+    if np.isfinite(film_ior):
+        limits.warn_if_cut(film_ior)
 
     thickness = np.full(mask.shape, np.nan)
     thickness[mask] = d_px
     valid = mask & reached & np.isfinite(thickness)
-    info = {"peaks": stats, "timings_s": t}
+    info = {"peaks": stats, "timings_s": t,
+            "thickness_range_nm": [limits.lo, limits.upper(film_ior) if np.isfinite(film_ior) else limits.hi]}
     return Estimate(normals=normals, thickness_nm=thickness, valid=valid, film_ior=film_ior,
                     substrate_ior=float(substrate_ior), height=height, info=info)

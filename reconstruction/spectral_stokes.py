@@ -228,8 +228,15 @@ def _interpolate_seeds(mask, seeds, *values, radius=2.0):
 
 
 def reconstruct_stokes(stokes, wavelengths_nm, substrate_ior, mask, smoothness=2.0, surface_sigma=0.01,
-                       misfit=4.0, iterations=8, thickness_sigma_nm=15.0, seed_step=3, max_chi2=10.0):
-    """The default spectral method on a Stokes capture (see :mod:`.spectral_default`)."""
+                       misfit=4.0, iterations=8, thickness_sigma_nm=15.0, seed_step=3, max_chi2=10.0,
+                       thickness_range_nm=None, band_fwhm_nm=0.0):
+    """The Stokes method: each pixel's s and p spectra fitted, one surface (the stages are
+    described in the body; the model in the module docstring).
+
+    ``thickness_range_nm``: the film thicknesses considered (default
+    :data:`thinfilm.core.bands.SPECTRAL_THICKNESS_RANGE_NM`, less where the bands of width
+    ``band_fwhm_nm`` cannot resolve the fringes: then one warning says so).
+    """
     import time
 
     from thinfilm.core.io import Estimate
@@ -241,6 +248,7 @@ def reconstruct_stokes(stokes, wavelengths_nm, substrate_ior, mask, smoothness=2
 
     wl = np.asarray(wavelengths_nm, dtype=np.float64)
     n3 = float(substrate_ior)
+    limits = _sf.thickness_limits(wl, thickness_range_nm, band_fwhm_nm)
     b = wl.size
     t = {}
     t0 = time.perf_counter()
@@ -261,7 +269,8 @@ def reconstruct_stokes(stokes, wavelengths_nm, substrate_ior, mask, smoothness=2
     # sample of the pixels)
     t0 = time.perf_counter()
     sample = np.unique(np.linspace(0, n - 1, min(n, 4000)).round().astype(np.int64))
-    n2, n2_info = _sf.estimate_film_ior_either_side(sp_of(sample), wl, n3)
+    n2, n2_info = _sf.estimate_film_ior_either_side(sp_of(sample), wl, n3, limits=limits)
+    limits.warn_if_cut(n2)
     above = n2_info["film_ior_above_substrate"]
     t["film_ior"] = time.perf_counter() - t0
 
@@ -283,7 +292,7 @@ def reconstruct_stokes(stokes, wavelengths_nm, substrate_ior, mask, smoothness=2
         pk, th_ext = _sf.extrema_angles(sp_g[:, :b], wl, n3, above)
         ok = np.isfinite(th_ext)
     seeds = gi[ok]
-    d_s = _sf.initial_thickness(sp_g[ok], th_ext[ok], pk.wavelength_nm[ok], n2, n3, wl)
+    d_s = _sf.initial_thickness(sp_g[ok], th_ext[ok], pk.wavelength_nm[ok], n2, n3, wl, limits=limits)
     t["init"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     fs = fit_stokes_pixels(S0[seeds], S1[seeds], S2[seeds], angles_to_x(th_ext[ok], phi0[seeds], d_s), n2, n3, wl,
@@ -314,7 +323,7 @@ def reconstruct_stokes(stokes, wavelengths_nm, substrate_ior, mask, smoothness=2
     if bad.any() and (~bad).any():
         src = _nearest(mask, ~bad)[bad]
         starts = [x[src]]
-        th_g, d_g = _sf._init_no_peak(sp_of(np.nonzero(bad)[0]), n2, n3, wl, x[src, 2])
+        th_g, d_g = _sf.init_no_peak(sp_of(np.nonzero(bad)[0]), n2, n3, wl, x[src, 2])
         starts.append(angles_to_x(th_g, phi0[bad], d_g))
         for x_start in starts:
             f2 = fit_stokes_pixels(S0[bad], S1[bad], S2[bad], x_start, n2, n3, wl, iterations=iterations)
@@ -402,6 +411,6 @@ def reconstruct_stokes(stokes, wavelengths_nm, substrate_ior, mask, smoothness=2
     info = {"timings_s": t, **n2_info, "capture": "stokes", "refit_poor": int(bad.sum()),
             "azimuth_sign_by_prior": az_info["sign_by_prior"],
             "unexplained_pixels": int(np.sum(chi2 >= max_chi2)),
-            "smoothness": smoothness}
+            "smoothness": smoothness, "thickness_range_nm": [limits.lo, limits.upper(n2)]}
     return Estimate(normals=out_n, thickness_nm=thickness, valid=valid, film_ior=float(n2),
                     substrate_ior=n3, height=height, info=info)

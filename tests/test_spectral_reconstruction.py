@@ -114,10 +114,10 @@ def test_thickness_at_a_new_angle_matches_a_full_refit():
     S = S + 1e-3 * rng.standard_normal(S.shape)
     noise = np.full(S.shape[0], 1e-3)
     th0 = np.radians(THETA)
-    th, d, neq = spectral_fit._levenberg_marquardt(S, th0, THICK + 2.0, N2, N3, WL, stokes_noise=noise)
+    th, d, neq = spectral_fit.angle_thickness_lm(S, th0, THICK + 2.0, N2, N3, WL, stokes_noise=noise)
     for move_deg in (0.05, 0.2, 3.0):
         new = th + np.radians(move_deg) * np.where(np.arange(th.size) % 2, 1.0, -1.0)
-        d_new = spectral_fit._thickness_at(S, new, th, d, neq, N2, N3, WL, noise)
+        d_new = spectral_fit.thickness_at(S, new, th, d, neq, N2, N3, WL, noise)
         _, d_ref, _, _ = spectral_fit.fit_angle_thickness(S, new, d, N2, N3, WL, iterations=30, fit_theta=False,
                                                 stokes_noise=noise)
         np.testing.assert_allclose(d_new, d_ref, atol=0.02)
@@ -131,10 +131,10 @@ def test_unfolded_slope_inverts_the_folded_normal_mean():
     sigma = 0.07
     mu = np.array([0.0, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0])
     observed = np.array([stats.foldnorm(m / sigma, scale=sigma).mean() for m in mu])
-    np.testing.assert_allclose(spectral_eikonal._unfold_magnitude(observed, sigma), mu, atol=2e-4)
+    np.testing.assert_allclose(spectral_eikonal.unfold_magnitude(observed, sigma), mu, atol=2e-4)
     # below the mean of |N(0, σ²)| the slope is 0; the fold does not touch large slopes
-    assert spectral_eikonal._unfold_magnitude(0.5 * sigma, sigma) == 0.0
-    assert spectral_eikonal._unfold_magnitude(20 * sigma, sigma) == pytest.approx(20 * sigma, rel=1e-12)
+    assert spectral_eikonal.unfold_magnitude(0.5 * sigma, sigma) == 0.0
+    assert spectral_eikonal.unfold_magnitude(20 * sigma, sigma) == pytest.approx(20 * sigma, rel=1e-12)
 
 
 # --- surfaces (numpy hemisphere, no rendering) ---------------------------------------------------
@@ -233,14 +233,14 @@ def test_end_to_end_cli_on_rendered_hemisphere(rendered, tmp_path, capsys, metho
     out = tmp_path / "est"
     assert main(["reconstruct", "spectral", str(rendered), "--out", str(out)] + method_args) == 0
     printed = capsys.readouterr().out.strip().splitlines()
-    assert len(printed) == 1 and printed[0].startswith(f"wrote {out} (method eikonal")
+    assert len(printed) == 1 and printed[0].startswith(f"wrote {out} (method auto")
     est = read_estimate(out)
     info = {**est.info, "film_ior": est.film_ior, "substrate_ior": est.substrate_ior}
     ch = {"valid": est.valid, "normal": est.normals, "thickness": est.thickness_nm}
     ds = read_dataset(rendered, need=("ground_truth",))
     gt = ds.ground_truth
     m = gt["mask"]
-    assert info["method"] == "eikonal" and info["substrate_ior"] == 1.6
+    assert info["method"] == "auto" and info["substrate_ior"] == 1.6
     # measured (48 px, default noise, seed 0): n2 1.37024, coverage 1.0, normal error mean 1.43°,
     # p95 4.02°; thickness error mean 0.64 nm, p95 2.13 nm, max 18 nm, no pixel above 20 nm
     assert abs(info["film_ior"] - 1.37) <= 0.002

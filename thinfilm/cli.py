@@ -17,9 +17,24 @@ import importlib
 import sys
 
 from . import __version__
-from .core.errors import UserError
+from .core.errors import NoResultError, UserError
 
-__all__ = ["main", "build_parser"]
+__all__ = ["main", "build_parser", "flag_for", "cli_message"]
+
+#: the flags of library arguments whose name is not the flag's (``--NAME`` with ``-`` for ``_``)
+FLAGS = {"thickness_range_nm": "--thickness-range", "options": "--option"}
+
+
+def flag_for(argument: str) -> str:
+    """The command-line flag of a library argument (``substrate_ior`` → ``--substrate-ior``)."""
+    return FLAGS.get(argument, "--" + argument.replace("_", "-"))
+
+
+def cli_message(error: UserError) -> str:
+    """A :class:`UserError` as the command line shows it: the argument it is about named by
+    its flag."""
+    argument = getattr(error, "argument", None)
+    return error.render(flag_for(argument)) if argument else str(error)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -156,18 +171,27 @@ def build_parser() -> argparse.ArgumentParser:
     rgb.add_argument("--out", required=True)
     rgb.add_argument("--film-ior", type=_index, default=None)
     rgb.add_argument("--substrate-ior", type=_index, default=None)
-    rgb.add_argument("--thickness-range", type=_nonnegative_float, nargs=2, metavar=("MIN", "MAX"), default=None)
+    rgb.add_argument("--thickness-range", type=_nonnegative_float, nargs=2, metavar=("MIN", "MAX"), default=None,
+                     help="film thicknesses to consider, nm (default: 100 to 1000; colour alone cannot order "
+                          "thicker films)")
     rgb.add_argument("--method", default=None,
                      help="a method of 'thinfilm methods', or package.module:function (default: the kind's default)")
     rgb.add_argument("--mask", default=None, help="optional mask image (non-zero on the object)")
+    rgb.add_argument("--option", action="append", default=None, metavar="NAME=VALUE",
+                    help="set one of the method's options (repeatable; 'thinfilm methods' lists them)")
     rgb.set_defaults(target="thinfilm.reconstruct:cli_main")
     sp = rsub.add_parser("spectral", help="from s-polarized hyperspectral images (film index estimated)")
     sp.add_argument("dataset")
     sp.add_argument("--out", required=True)
     sp.add_argument("--substrate-ior", type=_index, default=None)
+    sp.add_argument("--thickness-range", type=_nonnegative_float, nargs=2, metavar=("MIN", "MAX"), default=None,
+                    help="film thicknesses to consider, nm (default: 20 to 5000, less where the bands cannot "
+                         "resolve the fringes)")
     sp.add_argument("--method", default=None,
                     help="a method of 'thinfilm methods', or package.module:function (default: the kind's default)")
     sp.add_argument("--mask", default=None, help="optional mask image (non-zero on the object)")
+    sp.add_argument("--option", action="append", default=None, metavar="NAME=VALUE",
+                    help="set one of the method's options (repeatable; 'thinfilm methods' lists them)")
     sp.set_defaults(target="thinfilm.reconstruct:cli_main")
 
     me = sub.add_parser("methods", help="list the reconstruction methods (built-in and installed)")
@@ -399,8 +423,13 @@ def _run(argv) -> int:
     except UserError as e:
         if signals.received() is not None:
             return _interrupted(signals.received())
-        print(f"thinfilm: error: {_one_line(e)}", file=sys.stderr)
+        print(f"thinfilm: error: {_one_line(cli_message(e))}", file=sys.stderr)
         return 2
+    except NoResultError as e:
+        if signals.received() is not None:
+            return _interrupted(signals.received())
+        print(f"thinfilm: error: {_one_line(e)}", file=sys.stderr)
+        return 1
     except BrokenPipeError:
         # the reader of our output went away (``thinfilm methods | head -1``): not an error
         import os

@@ -1,4 +1,5 @@
-"""``thinfilm methods [--json]``: the reconstruction methods of the estimator registry."""
+"""``thinfilm methods [--json]``: the reconstruction methods of the estimator registry, each
+with its options (``reconstruct … --option NAME=VALUE``): name, type, default and help."""
 
 from __future__ import annotations
 
@@ -19,8 +20,10 @@ def cli_main(args) -> int:
         rows += [(m.name, m.kind, m.role, ",".join(m.aliases) or "-", m.source or "-", m.description)
                  for m in found]
         widths = [max(len(r[i]) for r in rows) for i in range(5)]
-        for r in rows:
+        for r, m in zip(rows, [None, *found]):
             print("  ".join(c.ljust(w) for c, w in zip(r[:5], widths)) + "  " + r[5])
+            for o in (m.options if m is not None else ()):
+                print(f"    --option {o.name}={o.default!s:<8} {o.describe()}: {o.help}")
     import sys
 
     for name, problem in registry.problems():

@@ -60,38 +60,43 @@ def film_for(dataset, method, film_ior=None, substrate_ior=None):
 
 
 def reconstruct(kind: str, dataset_path, method=None, film_ior=None, substrate_ior=None,
-                thickness_range_nm=None, mask_path=None, progress: bool = False):
+                thickness_range_nm=None, mask_path=None, progress: bool = False, options=None):
     """Run method ``method`` (a name, alias or ``package.module:function``; None: the
-    default) of ``kind`` on a dataset folder. Returns the :class:`~thinfilm.core.io.Estimate`
-    and the :class:`~thinfilm.core.registry.Method`."""
+    default) of ``kind`` on a dataset folder. ``options``: the method's options, a dict or
+    ``NAME=VALUE`` strings (checked against what the method declares). Returns the
+    :class:`~thinfilm.core.io.Estimate` and the :class:`~thinfilm.core.registry.Method`."""
     from thinfilm.core import registry
-    from thinfilm.core.errors import UserError
+    from thinfilm.core.errors import NoResultError, UserError
     from thinfilm.core.io import read_dataset, read_mask_file
 
     m = registry.get(kind, method)
+    given = registry.parse_options(options) if isinstance(options, (list, tuple)) else dict(options or {})
+    m.option_values(given)  # unknown or malformed options fail before any reading
     if thickness_range_nm is not None:
         lo, hi = (float(v) for v in thickness_range_nm)
         if not (math.isfinite(lo) and math.isfinite(hi)) or lo >= hi or lo < 0:
-            raise UserError(f"--thickness-range: expected 0 <= MIN < MAX in nm, got {lo:g} {hi:g}")
+            raise UserError(f"expected 0 <= MIN < MAX in nm, got {lo:g} {hi:g}", argument="thickness_range_nm")
         if hi > MAX_THICKNESS_RANGE_NM:
-            raise UserError(f"--thickness-range: MAX must be at most {MAX_THICKNESS_RANGE_NM:g} nm, got {hi:g}")
+            raise UserError(f"MAX must be at most {MAX_THICKNESS_RANGE_NM:g} nm, got {hi:g}",
+                            argument="thickness_range_nm")
         thickness_range_nm = (lo, hi)
     t0 = time.perf_counter()
     ds = read_dataset(dataset_path, need=m.needs, optional=m.uses)
     film = film_for(ds, m, film_ior, substrate_ior)
     mask = read_mask_file(mask_path, ds.shape) if mask_path is not None else None
     t_read = time.perf_counter() - t0
-    options = registry.Options(film=film, mask=mask, thickness_range_nm=thickness_range_nm, progress=progress)
+    options = registry.Options(film=film, mask=mask, thickness_range_nm=thickness_range_nm, progress=progress,
+                               method_options=given)
     try:
         est = registry.run(m, ds, options)
-    except (UserError, MemoryError):
+    except (UserError, NoResultError, MemoryError):
         raise
     except Exception as e:
         if str(getattr(m.function, "__module__", "")).startswith("thinfilm."):
             raise  # a bug of ours: reported as one
         # a method from elsewhere (an installed plugin, package.module:function) that failed
         reason = " ".join(f"{type(e).__name__}: {e}".split())[:300]
-        raise UserError(f"--method {m.name}: the method failed ({reason})") from None
+        raise UserError(f"the method failed ({reason})", argument="method", value=m.name) from None
     est.info["timings_s"] = {"read": t_read, **est.info.get("timings_s", {})}
     est.info["timings_s"]["total"] = time.perf_counter() - t0
     return est, m
@@ -111,7 +116,7 @@ def cli_main(args) -> int:
         est, method = reconstruct(args.kind, args.dataset, getattr(args, "method", None),
                                   getattr(args, "film_ior", None), getattr(args, "substrate_ior", None),
                                   getattr(args, "thickness_range", None), getattr(args, "mask", None),
-                                  progress=sys.stderr.isatty())
+                                  progress=sys.stderr.isatty(), options=getattr(args, "option", None) or [])
         t = time.perf_counter()
         write_estimate(tmp, est)
         # estimate.json again, last, so that it holds the time of the writing too
