@@ -23,6 +23,8 @@ Modules
     Estimate folders: the :class:`~thinfilm.core.estimate.Estimate`, reader, writer, mesh.
 :mod:`~thinfilm.core.evaluation_files`
     Evaluation folders: metrics and error maps.
+:mod:`~thinfilm.core.masks`
+    Otsu's threshold, shared by the importers and the reconstruction.
 :mod:`~thinfilm.core.outputs`
     Safe output folders and files: the replacement rule, the marker, the lock, temporaries.
 :mod:`~thinfilm.core.signals`

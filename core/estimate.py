@@ -1,8 +1,18 @@
 """Estimate folders (``docs/design.md``, *Estimate folder*): ``estimate.exr``,
 ``estimate.json`` and an optional ``surface.ply``.
 
+``estimate.exr`` holds :data:`ESTIMATE_CHANNELS` and, when the estimate has a height field,
+``height`` (scene units); every channel but ``valid`` is NaN off the valid pixels.
+``estimate.json`` holds ``format`` (:data:`ESTIMATE_FORMAT`), ``method``, ``film_ior``,
+``substrate_ior``, ``pixel_size`` (scene units per pixel of ``height``), ``timings_s`` and the
+method's other entries. An estimate read back (:func:`read_estimate`) is the one written, in
+float32: normals, thickness, valid pixels, height, pixel size, indices and entries; written
+and read again, it stays the same. An ``estimate.json`` without ``format`` (older estimates)
+reads with a pixel size of 1.
+
 :func:`read_estimate` stops with a :class:`~thinfilm.core.errors.UserError` that names the file
-and the channel; :func:`write_estimate` writes into a folder that exists, deterministically.
+and the channel or field; :func:`write_estimate` writes into a folder that exists,
+deterministically.
 """
 
 from __future__ import annotations
@@ -16,8 +26,11 @@ from .errors import UserError
 from .exr import read_exr, write_exr
 from .files import read_json, write_json
 
-__all__ = ["ESTIMATE_CHANNELS", "Estimate", "write_estimate", "read_estimate", "height_to_mesh"]
+__all__ = ["ESTIMATE_FORMAT", "ESTIMATE_CHANNELS", "Estimate", "write_estimate", "read_estimate", "height_to_mesh"]
 
+#: the ``format`` of ``estimate.json``
+ESTIMATE_FORMAT = "thinfilm-estimate/1"
+#: the channels every ``estimate.exr`` holds (``height`` too when there is a height field)
 ESTIMATE_CHANNELS = ("normal.X", "normal.Y", "normal.Z", "zenith", "azimuth", "thickness", "valid")
 
 
@@ -55,8 +68,10 @@ class Estimate:
     def json(self) -> dict:
         """The ``estimate.json`` content."""
         out = dict(self.info)
+        out["format"] = ESTIMATE_FORMAT
         out["film_ior"] = self.film_ior
         out["substrate_ior"] = self.substrate_ior
+        out["pixel_size"] = float(self.pixel_size)
         out.setdefault("method", None)
         out.setdefault("timings_s", {})
         return out
@@ -86,7 +101,8 @@ def height_to_mesh(height, mask, pixel_size=1.0):
 
 def write_estimate(folder, estimate: Estimate) -> Path:
     """Write the files of an estimate folder into ``folder`` (which exists):
-    ``estimate.exr``, ``estimate.json`` and, with a height field, ``surface.ply``."""
+    ``estimate.exr``, ``estimate.json`` and, with a height field, ``surface.ply`` (and the
+    ``height`` channel)."""
     from .conventions import normals_to_angles
 
     folder = Path(folder)
@@ -103,6 +119,8 @@ def write_estimate(folder, estimate: Estimate) -> Path:
         "thickness": np.where(valid, estimate.thickness_nm, nan),
         "valid": valid.astype(np.float32),
     }
+    if estimate.height is not None:
+        channels["height"] = np.where(valid, estimate.height, nan)
     write_exr(folder / "estimate.exr", channels)
     write_json(folder / "estimate.json", estimate.json())
     if estimate.height is not None and valid.sum() >= 4:
@@ -112,25 +130,38 @@ def write_estimate(folder, estimate: Estimate) -> Path:
 
 
 def read_estimate(path) -> Estimate:
-    """Read an estimate folder. One-line errors name the file and the channel."""
+    """Read an estimate folder (see the module docstring). One-line errors name the file and
+    the channel or field: a missing folder, file or channel, channels of other shapes, an
+    ``estimate.json`` that is not an object, an unknown ``format``, a ``pixel_size`` that is
+    not a positive number."""
     root = Path(path)
     if not root.is_dir():
         raise UserError(f"{root}: estimate folder not found")
     exr = root / "estimate.exr"
     ch = read_exr(exr)
     shape = None
-    for name in ESTIMATE_CHANNELS:
+    for name in (*ESTIMATE_CHANNELS, "height"):
         if name not in ch:
+            if name == "height":
+                continue
             raise UserError(f"{exr}: missing channel '{name}'")
         if shape is None:
             shape = ch[name].shape
         elif ch[name].shape != shape:
             raise UserError(f"{exr}: channel '{name}' has shape {ch[name].shape}, expected {shape}")
-    info = read_json(root / "estimate.json")
+    js = root / "estimate.json"
+    info = read_json(js)
     if not isinstance(info, dict):
-        raise UserError(f"{root / 'estimate.json'}: expected a JSON object")
+        raise UserError(f"{js}: expected a JSON object")
     info = dict(info)
+    form = info.pop("format", ESTIMATE_FORMAT)
+    if form != ESTIMATE_FORMAT:
+        raise UserError(f"{js}: unknown format {form!r}, expected '{ESTIMATE_FORMAT}'")
+    pixel_size = info.pop("pixel_size", 1.0)
+    if (isinstance(pixel_size, bool) or not isinstance(pixel_size, (int, float))
+            or not (np.isfinite(pixel_size) and pixel_size > 0)):
+        raise UserError(f"{js}: field 'pixel_size' must be a positive number, got {pixel_size!r}")
     normals = np.stack([ch["normal.X"], ch["normal.Y"], ch["normal.Z"]], axis=-1)
     return Estimate(normals=normals, thickness_nm=ch["thickness"], valid=ch["valid"] > 0.5,
                     film_ior=info.pop("film_ior", None), substrate_ior=info.pop("substrate_ior", None),
-                    info=info)
+                    height=ch.get("height"), pixel_size=float(pixel_size), info=info)

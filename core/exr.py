@@ -127,6 +127,10 @@ class ExrError(UserError):
         super().__init__(f"{path}: {message}")
         self.path = str(path)
         self.reason = reason
+        self.detail = message
+
+    def __reduce__(self):  # the same error after pickling (Dask workers)
+        return (type(self), (self.path, self.reason, self.detail))
 
 
 #: the kinds of :class:`ExrError`
@@ -147,6 +151,9 @@ class ExrWriteError(ExrError, OSError):
 
     def __str__(self):
         return self.args[0]
+
+    def __reduce__(self):
+        return (type(self), (self.path, OSError(self.errno, self.strerror)))
 
 
 # -- the layout of a file ------------------------------------------------------------------------

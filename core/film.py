@@ -12,7 +12,10 @@ Index values (:func:`as_index`) may be given as
 * a complex index ``"n+ki"`` (``"1.65+0.01i"``, k >= 0 absorbing);
 * a shipped material name (``"MgF2"``; :func:`thinfilm.bsdf.material_names`), which
   brings its own dispersion and extinction;
-* a Cauchy table ``{"cauchy": [A, B, C]}`` (λ in µm, :class:`thinfilm.bsdf.Cauchy`);
+* a Cauchy table ``{"cauchy": [A, B, C]}``, ``n = A + B/λ² + C/λ⁴`` with λ in **µm**, the one
+  unit of Cauchy coefficients everywhere (:class:`thinfilm.bsdf.Cauchy`, :func:`cauchy_index`;
+  ``thinfilm fit-spectrum --film-ior cauchy:A,B[,C]``); B and C plainly given with λ in nm
+  are refused;
 * a table ``{"n": 1.65, "k": 0.01}``.
 
 **Effective index.** Where one number is needed for a dispersive index (the paper's
@@ -49,6 +52,9 @@ from .errors import UserError
 
 __all__ = [
     "REFERENCE_WAVELENGTH_NM",
+    "CAUCHY_MAX_B_UM2",
+    "CAUCHY_MAX_C_UM4",
+    "cauchy_index",
     "Layer",
     "Film",
     "as_index",
@@ -57,6 +63,67 @@ __all__ = [
 
 #: wavelength (nm) at which a dispersive index is read when one number is needed
 REFERENCE_WAVELENGTH_NM = 550.0
+
+#: the largest |B| (µm²) and |C| (µm⁴) of a Cauchy model. Transparent materials have B of
+#: about 0.003–0.1 µm² and C below 0.01 µm⁴ (B = 1 µm² alone adds 6 to the index at 400 nm),
+#: so a larger value is one given with λ in nm (B nm² = 1e-6 µm², C nm⁴ = 1e-12 µm⁴)
+CAUCHY_MAX_B_UM2 = 1.0
+CAUCHY_MAX_C_UM4 = 1.0
+
+
+def cauchy_index(coefficients, where: str = "Cauchy model", unit: str = "um", other_form: str | None = None):
+    """A Cauchy model ``n = A + B/λ² + C/λ⁴`` (:class:`thinfilm.bsdf.Cauchy`, λ in µm) from
+    ``A, B[, C]``.
+
+    Parameters
+    ----------
+    coefficients : sequence of 1 to 3 numbers, A > 0.
+    unit : ``"um"`` (the project's unit) or ``"nm"``: the λ unit that B and C are given in
+        (B nm² = 1e-6 µm², C nm⁴ = 1e-12 µm⁴).
+    where : what the message of a :class:`UserError` names (a file and field, an option).
+    other_form : how to write the coefficients in the other unit, for the message that
+        refuses values plainly in that unit (e.g. ``"cauchy-nm:1.5,4000"``).
+
+    Raises
+    ------
+    UserError
+        One line: not 1 to 3 finite numbers, A <= 0, |B| > :data:`CAUCHY_MAX_B_UM2` or |C| >
+        :data:`CAUCHY_MAX_C_UM4` in µm (plainly nm), a non-zero |B| or |C| below 1 in nm (plainly
+        µm: it would change no index by 1e-5).
+
+    Examples
+    --------
+    >>> cauchy_index([1.45, 0.004, 0.0001])
+    Cauchy(A=1.45, B=0.004, C=0.0001)
+    >>> n_nm = cauchy_index([1.45, 4000.0, 1e8], unit="nm")     # the same model, λ in nm
+    >>> round(float(n_nm(500.0)), 10), round(1.45 + 0.004 / 0.5**2 + 0.0001 / 0.5**4, 10)
+    (1.4676, 1.4676)
+    """
+    from thinfilm.bsdf.materials import Cauchy
+
+    if unit not in ("um", "nm"):
+        raise ValueError(f"cauchy_index: unit must be 'um' or 'nm', got {unit!r}")
+    coef = list(coefficients) if isinstance(coefficients, (list, tuple)) else None
+    if not coef or len(coef) > 3 or not all(_is_number(c) for c in coef):
+        raise UserError(f"{where}: expected Cauchy constants A, B[, C] (n = A + B/λ² + C/λ⁴), "
+                        f"got {coefficients!r}"[:300])
+    a, b, c = [float(v) for v in coef] + [0.0] * (3 - len(coef))
+    if a <= 0:
+        raise UserError(f"{where}: the Cauchy constant A must be positive, got {a:g}")
+    hint = f"; {other_form}" if other_form else ""
+    if unit == "nm":
+        if 0 < abs(b) < 1 or 0 < abs(c) < 1:
+            raise UserError(f"{where}: Cauchy B = {b:g} nm², C = {c:g} nm⁴ are given with λ in µm, not nm "
+                            f"(with λ in nm, B is about 3e3 to 1e5 nm²){hint}")
+        b, c = b * 1e-6, c * 1e-12
+        if abs(b) > CAUCHY_MAX_B_UM2 or abs(c) > CAUCHY_MAX_C_UM4:
+            raise UserError(f"{where}: expected |B| <= {CAUCHY_MAX_B_UM2 * 1e6:g} nm² and |C| <= "
+                            f"{CAUCHY_MAX_C_UM4 * 1e12:g} nm⁴, got B = {b * 1e6:g}, C = {c * 1e12:g}")
+    elif abs(b) > CAUCHY_MAX_B_UM2 or abs(c) > CAUCHY_MAX_C_UM4:
+        raise UserError(f"{where}: Cauchy B = {b:g} µm², C = {c:g} µm⁴ are given with λ in nm, not µm "
+                        f"(B and C are in µm² and µm⁴: B is about 0.003 to 0.1, |B| <= {CAUCHY_MAX_B_UM2:g} "
+                        f"and |C| <= {CAUCHY_MAX_C_UM4:g}){hint}")
+    return Cauchy(a, b, c)
 
 def as_index(value, where: str = "refractive index"):
     """A dispersion model (``thinfilm.bsdf`` ``Constant``, ``Cauchy`` or ``Tabulated``) from
@@ -74,6 +141,9 @@ def as_index(value, where: str = "refractive index"):
     if isinstance(value, (Constant, Cauchy, Tabulated)):
         return value
     disp = None
+    if isinstance(value, dict) and set(value) == {"cauchy"}:
+        return cauchy_index(value["cauchy"], where,
+                            other_form="divide B by 1e6 and C by 1e12 for λ in µm")
     if isinstance(value, dict) and set(value) <= {"n", "k"} and "n" in value:
         n, k = value["n"], value.get("k", 0.0)
         if _is_number(n) and _is_number(k):

@@ -52,6 +52,7 @@ from .spec_schema import Checker, resolve, wavelength_grid
 
 __all__ = [
     "PRESETS",
+    "apply_override",
     "SceneSpec",
     "Shape",
     "Rig",
@@ -228,7 +229,21 @@ def _parse_value(text: str):
         return text.strip()
 
 
-def _apply_override(spec: dict, item: str) -> None:
+def apply_override(spec: dict, item: str) -> None:
+    """Apply one ``--set KEY=VALUE`` item to a raw spec (or sweep) table in place.
+
+    ``KEY`` is a dotted path (``film.thickness.value``), made of tables as needed; ``VALUE`` is
+    read as TOML (a number, a list, an inline table), else kept as text. A relative ``path``
+    (and a camera or illuminant ``.csv``) is made relative to the current folder. Setting
+    ``shape.kind`` or ``film.thickness.profile`` to another value drops the old one's keys.
+    A malformed item, or one that replaces a table by a value, is a one-line
+    :class:`~thinfilm.core.errors.UserError` naming ``--set``.
+
+    >>> spec = {"film": {"thickness": {"profile": "constant", "value": 300.0}}}
+    >>> apply_override(spec, "film.thickness.value=450")
+    >>> spec
+    {'film': {'thickness': {'profile': 'constant', 'value': 450}}}
+    """
     if not isinstance(item, str) or "=" not in item:
         raise UserError(f"expected KEY=VALUE, e.g. film.thickness.value=450", argument="set", value=repr(item))
     key, text = item.split("=", 1)
@@ -313,7 +328,7 @@ def load_spec(spec_or_preset, overrides=(), resolution=None, seed=None) -> Scene
         raw = _read_toml(path)
         base_dir = path.resolve().parent
     for item in overrides or ():
-        _apply_override(raw, item)
+        apply_override(raw, item)
     if overrides:
         source = f"{source} with --set {' '.join(overrides)}"
     if resolution is not None:

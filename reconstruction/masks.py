@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from thinfilm.core.masks import otsu_threshold
 
 __all__ = ["mask_from_intensity", "otsu_threshold", "outward_directions", "resolve_azimuth", "masked_median"]
 
@@ -87,19 +88,6 @@ def masked_median(values, mask, size: int = 5):
     out = values.copy()
     out[rows, cols] = 0.5 * (lo + hi)
     return out
-
-
-def otsu_threshold(values, bins: int = 256) -> float:
-    """Otsu's threshold of ``values``: the histogram split of largest between-class variance."""
-    hist, edges = np.histogram(values, bins=bins)
-    centers = 0.5 * (edges[:-1] + edges[1:])
-    w0 = np.cumsum(hist)
-    w1 = w0[-1] - w0
-    m0 = np.cumsum(hist * centers)
-    mu0 = m0 / np.maximum(w0, 1)
-    mu1 = (m0[-1] - m0) / np.maximum(w1, 1)
-    between = w0 * w1 * (mu0 - mu1) ** 2
-    return float(centers[int(np.argmax(between))])
 
 
 def outward_directions(mask, smooth_px: float = 1.5):

@@ -134,6 +134,86 @@ def test_estimate_round_trip(tmp_path):
     assert (tmp_path / "surface.ply").is_file()
 
 
+def _estimate(seed=1, shape=(6, 7), height=True):
+    rng = np.random.default_rng(seed)
+    n = rng.normal(size=(*shape, 3))
+    n[..., 2] = np.abs(n[..., 2]) + 0.1
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    valid = rng.random(shape) > 0.3
+    return Estimate(n, rng.uniform(100, 900, shape), valid, 1.3812, 1.52,
+                    height=rng.normal(size=shape) if height else None, pixel_size=0.0125,
+                    info={"method": "spectral/eikonal", "timings_s": {"total": 1.5, "read": 0.25},
+                          "valid_fraction": 0.7, "notes": ["a", "b"]})
+
+
+def test_an_estimate_reads_back_whole(tmp_path):
+    """Every channel written, the height field and its pixel size, the indices and the
+    entries of estimate.json read back (in float32); written and read again, nothing changes."""
+    est = _estimate()
+    (tmp_path / "a").mkdir()
+    write_estimate(tmp_path / "a", est)
+    back = read_estimate(tmp_path / "a")
+    valid = est.valid
+    f32 = np.float32
+    np.testing.assert_array_equal(back.valid, valid)
+    for got, want in ((back.normals, est.normals), (back.thickness_nm, est.thickness_nm),
+                      (back.height, est.height)):
+        assert got.dtype == f32 and got.shape == want.shape
+        np.testing.assert_array_equal(got[valid], want[valid].astype(f32))
+        assert np.isnan(got[~valid]).all()
+    assert back.pixel_size == 0.0125 and back.film_ior == 1.3812 and back.substrate_ior == 1.52
+    assert back.info == est.info
+    # zenith and azimuth in the file are those of the normals
+    from thinfilm.core.io import read_exr
+
+    ch = read_exr(tmp_path / "a" / "estimate.exr")
+    assert sorted(ch) == sorted(["normal.X", "normal.Y", "normal.Z", "zenith", "azimuth", "thickness", "valid",
+                                 "height"])
+    zenith, azimuth = normals_to_angles(est.normals)
+    np.testing.assert_array_equal(ch["zenith"][valid], zenith[valid].astype(f32))
+    np.testing.assert_array_equal(ch["azimuth"][valid], azimuth[valid].astype(f32))
+    js = json.loads((tmp_path / "a" / "estimate.json").read_text())
+    assert js["format"] == "thinfilm-estimate/1" and js["pixel_size"] == 0.0125
+    (tmp_path / "b").mkdir()
+    write_estimate(tmp_path / "b", back)
+    again = read_estimate(tmp_path / "b")
+    for name in ("normals", "thickness_nm", "valid", "height"):
+        np.testing.assert_array_equal(getattr(again, name), getattr(back, name))
+    assert (again.film_ior, again.substrate_ior, again.pixel_size, again.info) == \
+        (back.film_ior, back.substrate_ior, back.pixel_size, back.info)
+    assert (tmp_path / "a" / "estimate.json").read_bytes() == (tmp_path / "b" / "estimate.json").read_bytes()
+
+
+def test_an_estimate_without_height_reads_back_without_one(tmp_path):
+    write_estimate(tmp_path, _estimate(height=False))
+    back = read_estimate(tmp_path)
+    assert back.height is None and back.pixel_size == 0.0125
+    assert not (tmp_path / "surface.ply").exists()
+
+
+def test_an_older_estimate_json_without_format_still_reads(tmp_path):
+    write_estimate(tmp_path, _estimate())
+    js = json.loads((tmp_path / "estimate.json").read_text())
+    del js["format"], js["pixel_size"]
+    (tmp_path / "estimate.json").write_text(json.dumps(js))
+    back = read_estimate(tmp_path)
+    assert back.pixel_size == 1.0 and back.film_ior == 1.3812 and "format" not in back.info
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"format": "thinfilm-estimate/9"}, "unknown format 'thinfilm-estimate/9', expected 'thinfilm-estimate/1'"),
+    ({"pixel_size": -1.0}, "field 'pixel_size' must be a positive number, got -1.0"),
+    ({"pixel_size": "1"}, "field 'pixel_size' must be a positive number"),
+])
+def test_a_bad_format_or_pixel_size_is_one_line(tmp_path, change, message):
+    write_estimate(tmp_path, _estimate())
+    js = json.loads((tmp_path / "estimate.json").read_text())
+    js.update(change)
+    (tmp_path / "estimate.json").write_text(json.dumps(js))
+    with pytest.raises(UserError, match=message):
+        read_estimate(tmp_path)
+
+
 def test_exr_bytes_do_not_depend_on_the_thread_count(tmp_path):
     """OpenEXR compresses ZIP blocks on a thread pool; the file must be the same bytes with
     one thread as with several (the same spec and seed give the same dataset anywhere)."""

@@ -234,3 +234,19 @@ def test_openexrs_pool_follows_the_thread_budget_and_an_explicit_size(tmp_path):
         set_exr_threads(None)
         set_thread_budget(None)
     assert pool_after_a_write() == (full if full > 1 else 0)
+
+
+def test_errors_survive_pickling(tmp_path):
+    """Errors cross processes (Dask workers) whole."""
+    import pickle
+
+    with pytest.raises(ExrError) as read_error:
+        read_exr(tmp_path / "none.exr")
+    with pytest.raises(ExrWriteError) as write_error:
+        write_exr(tmp_path / "no" / "x.exr", _channels(7))
+    for e in (read_error.value, write_error.value):
+        back = pickle.loads(pickle.dumps(e))
+        assert type(back) is type(e) and str(back) == str(e) and back.reason == e.reason and back.path == e.path
+    back = pickle.loads(pickle.dumps(write_error.value))
+    assert (back.errno, back.strerror, back.filename) == (errno.ENOENT, os.strerror(errno.ENOENT),
+                                                          str(tmp_path / "no" / "x.exr"))

@@ -78,12 +78,12 @@ def test_thin_films_with_background_and_reference(name, n2, n3, k3, angle):
 
 
 def test_dispersive_cauchy_film():
-    """A Cauchy film (λ in µm in the model, nm on the command line) on silicon."""
+    """A Cauchy film (λ in µm, in the model and on the command line) on silicon."""
     film = Cauchy(1.45, 0.0040, 0.0001)  # n = A + B/λ² + C/λ⁴, λ in µm
     rng = np.random.default_rng(3)
     truth = [150.0, 700.0, 2500.0]
     data = [_instrument(LAM, _tmm_reflectance(LAM, d, film, 3.9, 0.02), rng) for d in truth]
-    model = FilmModel(parse_index("cauchy:1.45,4000,1e8"), 3.9, 0.02)
+    model = FilmModel(parse_index("cauchy:1.45,0.004,0.0001"), 3.9, 0.02)
     fits = [fit_spectra(LAM, raw, model, background=dark, reference=white)[0] for raw, dark, white in data]
     _check(fits, truth)
 
@@ -122,11 +122,62 @@ def test_fit_film_ior_on_thick_films():
         assert abs(f.thickness_nm - d) <= 0.01 * d
 
 
-def test_cauchy_option_is_in_nanometres():
+def test_cauchy_option_is_in_micrometres_and_the_nm_form_has_its_marker():
     lam = np.array([400.0, 550.0, 800.0])
-    n = parse_index("cauchy:1.5,4000,2e8")(lam)
-    np.testing.assert_allclose(n, 1.5 + 4000.0 / lam**2 + 2e8 / lam**4, rtol=1e-12)
+    um = lam / 1000.0
+    n = parse_index("cauchy:1.5,0.004,0.0002")(lam)
+    np.testing.assert_allclose(n, 1.5 + 0.004 / um**2 + 0.0002 / um**4, rtol=1e-12)
+    n_nm = parse_index("CAUCHY-NM:1.5,4000,2e8")(lam)
+    np.testing.assert_allclose(n_nm, 1.5 + 4000.0 / lam**2 + 2e8 / lam**4, rtol=1e-12)
+    np.testing.assert_allclose(n_nm, n, rtol=1e-12)
+    assert parse_index("cauchy:1.5")(lam).tolist() == [1.5] * 3 == parse_index("cauchy-nm:1.5")(lam).tolist()
     assert parse_index("MgF2")(550.0) == pytest.approx(1.3785, abs=1e-4)
+
+
+@pytest.mark.parametrize("text, fragment", [
+    ("cauchy:1.5,4000", "for λ in nm write cauchy-nm:1.5,4000"),
+    ("cauchy:1.45,0.004,1e8", "for λ in nm write cauchy-nm:1.45,0.004,1e8"),
+    ("cauchy-nm:1.5,0.004", "for λ in µm write cauchy:1.5,0.004"),
+    ("cauchy-nm:1.45,4000,0.0001", "for λ in µm write cauchy:1.45,4000,0.0001"),
+    ("cauchy-nm:1.5,5e7", "expected |B| <= 1e+06 nm²"),
+])
+def test_cauchy_values_plainly_in_the_other_unit_are_refused(text, fragment):
+    with pytest.raises(UserError, match="--film-ior: ") as info:
+        parse_index(text)
+    assert fragment in str(info.value) and "\n" not in str(info.value)
+
+
+def test_cauchy_in_nm_without_its_marker_is_refused_on_the_command_line(tmp_path, capsys):
+    good = _write(tmp_path / "good.csv", np.linspace(400, 800, 50), np.linspace(1.0, 2.0, 50))
+    assert main(["fit-spectrum", good, "--film-ior", "cauchy:1.324,3046", "--substrate-ior", "1"]) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and err.count("\n") == 1 and err.startswith("thinfilm: error: --film-ior: ")
+    assert "cauchy-nm:1.324,3046" in err and "Traceback" not in err
+
+
+def test_both_cauchy_forms_fit_the_same(measured, capsys):
+    files, truth, _, _ = measured
+    rows = []
+    for index in ("cauchy:1.46,0.0035,0.00002", "cauchy-nm:1.46,3500,2e7"):
+        assert main(["fit-spectrum", files[0], "--film-ior", index, "--substrate-ior", "3.9",
+                     "--substrate-k", "0.02", "--json"]) == 0
+        rows.append(json.loads(capsys.readouterr().out))
+    # the same model up to the rounding of B nm² · 1e-6 = B µm²: the same fit to 1e-9
+    assert sorted(rows[0]) == sorted(rows[1])
+    for key, value in rows[0].items():
+        assert rows[1][key] == (pytest.approx(value, rel=1e-9) if isinstance(value, (float, list)) else value), key
+    assert abs(rows[0]["thickness_nm"] - truth[0]) <= 0.05 * truth[0]
+
+
+def test_cauchy_in_meta_json_is_in_micrometres():
+    from thinfilm.core.film import as_index
+
+    lam = np.array([450.0, 650.0])
+    n = as_index({"cauchy": [1.5, 0.004]}, "meta.json: 'film'")(lam)
+    np.testing.assert_allclose(n, 1.5 + 0.004 / (lam / 1000.0) ** 2, rtol=1e-12)
+    with pytest.raises(UserError, match=r"meta.json: 'film': Cauchy B = 4000 µm², C = 0 µm⁴ are given with "
+                                        r"λ in nm, not µm .*divide B by 1e6"):
+        as_index({"cauchy": [1.5, 4000.0]}, "meta.json: 'film'")
 
 
 # ---------------------------------------------------------------------------

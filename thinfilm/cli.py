@@ -227,7 +227,8 @@ def build_parser() -> argparse.ArgumentParser:
     fs.add_argument("spectra", nargs="+", metavar="SPECTRUM",
                     help="two-column text file: wavelength in nm, value (comma or whitespace separated)")
     fs.add_argument("--film-ior", required=True, metavar="N|MATERIAL|cauchy:A,B[,C]",
-                    help="film index: a number, a material, or Cauchy n = A + B/λ² + C/λ⁴ with λ in nm")
+                    help="film index: a number, a material, or Cauchy n = A + B/λ² + C/λ⁴ with λ in µm "
+                         "(B in µm², C in µm⁴; cauchy-nm:A,B[,C] takes them with λ in nm)")
     fs.add_argument("--substrate-ior", required=True, metavar="N3",
                     help="substrate index, a number or a material (1 for a free-standing film in air)")
     fs.add_argument("--substrate-k", type=float, default=None, metavar="K", help="substrate extinction k3")

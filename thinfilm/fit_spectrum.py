@@ -2,7 +2,7 @@
 
 ::
 
-    thinfilm fit-spectrum SPECTRUM... --film-ior N|MATERIAL|cauchy:A,B[,C] --substrate-ior N3
+    thinfilm fit-spectrum SPECTRUM... --film-ior N|MATERIAL|cauchy:A,B[,C]|cauchy-nm:A,B[,C] --substrate-ior N3
         [--substrate-k K] [--angle DEG] [--background FILE] [--reference FILE]
         [--wavelength-range MIN MAX] [--thickness-range MIN MAX] [--fit-film-ior] [--json]
 
@@ -24,7 +24,11 @@ spectrum's wavelengths; they must cover its fitted range.
 Indices
 -------
 ``--film-ior`` is a number, a shipped material name (:func:`thinfilm.bsdf.material_names`) or
-``cauchy:A,B[,C]``, meaning ``n = A + B/λ² + C/λ⁴`` with λ in **nm**. ``--substrate-ior`` is a
+``cauchy:A,B[,C]``, meaning ``n = A + B/λ² + C/λ⁴`` with λ in **µm** (B in µm², C in µm⁴), the
+unit of :class:`thinfilm.bsdf.Cauchy` and of ``{"cauchy": [A, B, C]}`` in ``meta.json``.
+Coefficients with λ in nm are taken only with their marker, ``cauchy-nm:A,B[,C]`` (B in nm², C
+in nm⁴); ``cauchy:`` values plainly in nm (|B| > 1 µm², e.g. ``cauchy:1.5,4000``) and
+``cauchy-nm:`` values plainly in µm are refused in one line that names the other form. ``--substrate-ior`` is a
 number or a material name (``1`` for a free-standing film in air); ``--substrate-k`` its
 extinction. With ``--fit-film-ior`` an offset to the film index is fitted (the given index is
 the start) and reported at the middle of the fitted range.
@@ -152,41 +156,51 @@ def _is_number(text):
 
 
 def parse_index(text, option="--film-ior", allow_cauchy=True):
-    """A dispersion model from ``N``, a material name or ``cauchy:A,B[,C]`` (λ in nm).
+    """A dispersion model from ``N``, a material name, ``cauchy:A,B[,C]`` (λ in µm, the
+    project's one unit of Cauchy coefficients) or ``cauchy-nm:A,B[,C]`` (λ in nm).
+
+    B and C plainly in the other unit (``cauchy:1.5,4000``: B = 4000 µm²) are refused in one
+    line that gives the form to write (:func:`thinfilm.core.film.cauchy_index`).
 
     Examples
     --------
-    >>> round(float(parse_index("cauchy:1.5,4000")(500.0)), 4)
+    >>> round(float(parse_index("cauchy:1.5,0.004")(500.0)), 4)
+    1.516
+    >>> round(float(parse_index("cauchy-nm:1.5,4000")(500.0)), 4)
     1.516
     >>> parse_index("1.33")(600.0)
     1.33
     """
     from thinfilm.bsdf.materials import as_dispersion, material_names
+    from thinfilm.core.film import cauchy_index
 
     text = str(text).strip()
-    if allow_cauchy and text.lower().startswith("cauchy:"):
-        cells = [c.strip() for c in text[7:].split(",")]
+    lowered = text.lower()
+    if allow_cauchy and lowered.startswith(("cauchy:", "cauchy-nm:")):
+        unit = "nm" if lowered.startswith("cauchy-nm:") else "um"
+        body = text.split(":", 1)[1]
+        marker, other = ("cauchy-nm", "cauchy") if unit == "nm" else ("cauchy", "cauchy-nm")
+        lam = "λ in nm" if unit == "nm" else "λ in µm"
         try:
-            coef = [float(c) for c in cells]
+            coef = [float(c) for c in body.split(",")]
         except ValueError:
             coef = []
         if not 1 <= len(coef) <= 3 or not all(math.isfinite(c) for c in coef):
-            raise UserError(f"{option}: expected cauchy:A,B[,C] with numbers (n = A + B/λ² + C/λ⁴, "
-                            f"λ in nm), got {text!r}")
+            raise UserError(f"{option}: expected {marker}:A,B[,C] with numbers (n = A + B/λ² + C/λ⁴, "
+                            f"{lam}), got {text!r}")
         if coef[0] <= 0:
             raise UserError(f"{option}: the Cauchy constant A must be positive, got {coef[0]:g}")
-        coef += [0.0] * (3 - len(coef))
-        if not (INDEX_RANGE[0] <= coef[0] <= INDEX_RANGE[1] and abs(coef[1]) <= 1e7 and abs(coef[2]) <= 1e12):
+        if not INDEX_RANGE[0] <= coef[0] <= INDEX_RANGE[1]:
             raise UserError(f"{option}: expected Cauchy constants with A from {INDEX_RANGE[0]:g} to "
-                            f"{INDEX_RANGE[1]:g}, |B| <= 1e7 nm² and |C| <= 1e12 nm⁴, got {text!r}")
-        # the shipped Cauchy model takes λ in µm: B nm² = B·1e-6 µm², C nm⁴ = C·1e-12 µm⁴
-        return as_dispersion({"cauchy": [coef[0], coef[1] * 1e-6, coef[2] * 1e-12]})
+                            f"{INDEX_RANGE[1]:g}, got {text!r}")
+        return cauchy_index(coef, option, unit, other_form=f"for {'λ in µm' if unit == 'nm' else 'λ in nm'} "
+                                                           f"write {other}:{body.strip()}")
     try:
         value = float(text)
     except ValueError:
         names = material_names()
         if text.lower() not in {m.lower() for m in names}:
-            forms = "a number, cauchy:A,B[,C] or" if allow_cauchy else "a number or"
+            forms = "a number, cauchy:A,B[,C] (λ in µm) or" if allow_cauchy else "a number or"
             raise UserError(f"{option}: expected {forms} a material ({', '.join(names)}), "
                             f"got {text!r}") from None
         return as_dispersion(text)

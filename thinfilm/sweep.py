@@ -37,7 +37,7 @@ FORMAT = "thinfilm-sweep/1"
 
 def load_sweep(path, overrides=(), resolution=None) -> dict:
     """Read a sweep file, apply ``--set`` items and ``--resolution``, check its distributions."""
-    from thinfilm.generators.spec import _apply_override
+    from thinfilm.generators.spec import apply_override
     from thinfilm.generators.sweep import check_sweep
 
     p = Path(path).expanduser()
@@ -47,7 +47,7 @@ def load_sweep(path, overrides=(), resolution=None) -> dict:
 
     raw = read_toml(p, "sweep")
     for item in overrides or ():
-        _apply_override(raw, item)
+        apply_override(raw, item)
     if resolution is not None:
         rig = raw.setdefault("rig", {})
         if not isinstance(rig, dict):

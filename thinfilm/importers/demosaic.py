@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from thinfilm.reconstruction.masks import otsu_threshold
+from thinfilm.core.masks import otsu_threshold
 
 __all__ = ["demosaic", "footprint", "edge_pixels"]
 
