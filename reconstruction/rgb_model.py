@@ -1,111 +1,133 @@
-"""Forward model of polarized camera RGB for a thin film seen in specular reflection.
+"""Polarized camera RGB of a thin film seen in specular reflection, as the RGB methods see it.
 
-A pixel whose surface normal has zenith θ and azimuth φ (camera frame of ``DESIGN.md``)
-reflects the uniform, unpolarized dome towards the orthographic camera at incidence θ.
-Per band the reflected Stokes vector is the specular one of
-:func:`thinfilm.core.conventions.specular_stokes`: ``(S0, -P cos 2φ, -P sin 2φ)`` with
-``S0 = (R_s + R_p)/2`` and ``P = (R_s - R_p)/2``. ``R_s``, ``R_p`` come from :mod:`thinfilm.bsdf.optics` (the coherent Airy model, the
-project's one copy of the physics) and the camera response from
-:func:`thinfilm.core.colorimetry.camera_weights` (the same white-balanced weights the capture
-generator uses). Behind a polarizer at α the camera sees
-``½ (S0 + S1 cos 2α + S2 sin 2α)`` per RGB channel.
+A pixel whose surface normal has zenith θ and azimuth φ (:mod:`thinfilm.core.conventions`)
+reflects the uniform, unpolarized dome towards the orthographic camera at incidence θ. Every
+value comes from the observation model (:class:`thinfilm.core.model.ObservationModel`, the
+optics core in a Dr.Jit kernel) on the rig's bands, with the generator's band integration
+(the rig's passband), camera and illuminant: per RGB channel ``S0 = (R_s + R_p)/2`` and
+``P = (R_s - R_p)/2`` integrated over the bands with the white-balanced camera weights, the
+Stokes vector ``(S0, -P cos 2φ, -P sin 2φ)`` in the image frame, and
+``½ (S0 + S1 cos 2α + S2 sin 2α)`` behind a polarizer at α.
 
-Zenith is carried as ``u = sin² θ`` inside the solvers: the polarization signal grows
-linearly in ``u`` near normal incidence, which keeps the inversion well conditioned there.
+The inversion (:mod:`.rgb_invert`) reads the model through a bicubic tabulation in
+``(cos θ, thickness)`` (:class:`FilmTable`, :func:`film_table`), whose values are the
+model's. Zenith is carried as ``u = sin² θ`` inside the solvers: the polarization signal
+grows linearly in ``u`` near normal incidence, which keeps the inversion well conditioned
+there.
 """
 
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from thinfilm.bsdf import optics
-from thinfilm.core.colorimetry import DEFAULT_CAMERA, DEFAULT_ILLUMINANT, camera_weights
-from thinfilm.core.conventions import malus_intensity, specular_stokes
+from thinfilm.core.colorimetry import DEFAULT_CAMERA, DEFAULT_ILLUMINANT
+from thinfilm.core.conventions import malus_intensity
 from thinfilm.core.film import Film
+from thinfilm.core.model import ObservationModel, Parametrization, PixelState, Rig
 
-__all__ = ["FilmCamera", "FilmTable", "film_table"]
+__all__ = ["FilmCamera", "FilmTable", "film_table", "INCIDENCE"]
+
+
+def _incidence(x, fixed, layers, dr):
+    return PixelState(x[0], fixed.get("c2", 1.0), fixed.get("s2", 0.0), fixed.get("light", 1.0), [x[1]], [])
+
+
+#: the model's unknowns of a table node: ``(cos θ, thickness_nm)`` in the plane of incidence of
+#: the Stokes reference axis (``S1 = P``, ``S2 = 0``). ``cos θ`` is taken as given, without
+#: clipping: the table's nodes reach half a step beyond normal incidence, where the optics
+#: core's expressions continue analytically (``sin² θ < 0``), so that the spline's end
+#: conditions see a smooth function
+INCIDENCE = Parametrization("incidence", ("cos_theta", "thickness_nm"), _incidence)
 
 
 @dataclass
 class FilmCamera:
-    """A film (:class:`thinfilm.core.film.Film`, possibly dispersive) seen by an RGB camera.
+    """A film (:class:`thinfilm.core.film.Film`, possibly dispersive) seen by an RGB camera
+    through the bands of a rig.
 
     Parameters
     ----------
     wavelengths_nm : (B,) band centres.
     film : :class:`~thinfilm.core.film.Film` (a single film; its thickness is the unknown).
     camera, illuminant : names or CSV paths, as in :mod:`thinfilm.core.colorimetry`.
+    band_fwhm_nm, passband : the bands' passband (:class:`thinfilm.core.model.Rig`; 0: point
+        samples at the centres). :meth:`of_rig` takes them from a dataset's rig.
+    backend : Dr.Jit backend of the model, ``"llvm"`` or ``"cuda"``.
+
+    Attributes
+    ----------
+    rig : the :class:`~thinfilm.core.model.Rig` of the bands, camera and illuminant.
+    model : the :class:`~thinfilm.core.model.ObservationModel` (double precision).
     """
 
     wavelengths_nm: np.ndarray
     film: Film
     camera: str = DEFAULT_CAMERA
     illuminant: str = DEFAULT_ILLUMINANT
-    weights: np.ndarray = field(init=False, repr=False)
+    band_fwhm_nm: float = 0.0
+    passband: str = "gaussian"
+    backend: str = "llvm"
+    rig: Rig = field(init=False, repr=False)
+    model: ObservationModel = field(init=False, repr=False)
 
     def __post_init__(self):
         if not self.film.is_single:
             raise ValueError("the RGB forward model handles a single film")
         self.wavelengths_nm = np.asarray(self.wavelengths_nm, dtype=np.float64)
-        self.weights = camera_weights(self.wavelengths_nm, self.camera, self.illuminant)  # (B, 3)
-        self._n2, self._k2 = self.film.layers[0].n_k(self.wavelengths_nm)
-        self._n3, self._k3 = self.film.substrate_n_k(self.wavelengths_nm)
+        self.rig = Rig(wavelengths_nm=tuple(self.wavelengths_nm), band_fwhm_nm=float(self.band_fwhm_nm),
+                       passband=self.passband, camera=self.camera, illuminant=self.illuminant)
+        self.model = ObservationModel(self.rig, self.film, backend=self.backend, precision="double")
+
+    @classmethod
+    def of_rig(cls, rig: Rig, film: Film, backend: str = "llvm") -> "FilmCamera":
+        """The camera of a rig (:meth:`thinfilm.core.model.Rig.of_dataset`): its bands,
+        passband, camera and illuminant."""
+        return cls(np.asarray(rig.wavelengths_nm), film, rig.camera, rig.illuminant, rig.band_fwhm_nm,
+                   rig.passband, backend)
 
     # -- spectra ------------------------------------------------------------------------
-    def spectra(self, cos_theta, thickness_nm, backend: str = "numpy"):
-        """Spectral ``(S0, P)``, each of shape ``broadcast(cos_theta, thickness_nm) + (B,)``,
-        with ``S0 = (R_s + R_p)/2`` and ``P = (R_s - R_p)/2``.
-
-        ``backend``: ``"numpy"``, or ``"llvm"`` to evaluate the same optics code on Dr.Jit's
-        LLVM backend in double precision (one fused, multi-threaded kernel; a few times
-        faster on large grids).
-        """
-        c = np.asarray(cos_theta, dtype=np.float64)[..., None]
-        d = np.asarray(thickness_nm, dtype=np.float64)[..., None]
-        # Non-absorbing media pass k = 0 as a number (the optics core then skips it).
-        k2 = self._k2 if np.any(self._k2) else 0.0
-        k3 = self._k3 if np.any(self._k3) else 0.0
-        if backend == "llvm":
-            from drjit.llvm import Float64
-
-            arrays = np.broadcast_arrays(c, self.wavelengths_nm, d, self._n2, self._n3, k3, k2)
-            jit = [Float64(np.ascontiguousarray(a).ravel()) for a in arrays]
-            if np.isscalar(k3):
-                jit[5] = 0.0
-            if np.isscalar(k2):
-                jit[6] = 0.0
-            Rs, Rp = optics.reflectances(*jit[:6], float(self.film.ext_ior), jit[6])
-            Rs, Rp = np.asarray(Rs).reshape(arrays[0].shape), np.asarray(Rp).reshape(arrays[0].shape)
-        elif backend == "numpy":
-            Rs, Rp = optics.reflectances(c, self.wavelengths_nm, d, self._n2, self._n3, k3,
-                                         self.film.ext_ior, k2)
-        else:
-            raise ValueError(f"backend: expected 'numpy' or 'llvm', got {backend!r}")
-        return 0.5 * (Rs + Rp), 0.5 * (Rs - Rp)
-
-    def rgb_s0_p(self, cos_theta, thickness_nm, chunk: int = 65536, backend: str = "numpy"):
-        """Camera-RGB ``(S0, P)``, each ``shape + (3,)`` (the band axis integrated out).
-        ``backend``: see :meth:`spectra`."""
-        c, d = np.broadcast_arrays(np.asarray(cos_theta, dtype=np.float64),
-                                   np.asarray(thickness_nm, dtype=np.float64))
-        shape = c.shape
-        c, d = c.ravel(), d.ravel()
-        S0 = np.empty((c.size, 3))
-        P = np.empty((c.size, 3))
+    def spectra(self, cos_theta, thickness_nm, chunk: int = 1 << 14):
+        """Band ``(S0, P)``, each of shape ``broadcast(cos_theta, thickness_nm) + (B,)``, with
+        ``S0 = (R_s + R_p)/2`` and ``P = (R_s - R_p)/2`` integrated over each band's passband."""
+        c, d = self._nodes(cos_theta, thickness_nm)
+        B = self.wavelengths_nm.size
+        S0, P = np.empty((c.size, B)), np.empty((c.size, B))
         for i in range(0, c.size, chunk):
-            s0, p = self.spectra(c[i:i + chunk], d[i:i + chunk], backend)
-            S0[i:i + chunk] = s0 @ self.weights
-            P[i:i + chunk] = p @ self.weights
+            v = self.model.evaluate("stokes", np.stack([c[i:i + chunk], d[i:i + chunk]], axis=1), INCIDENCE)
+            S0[i:i + chunk], P[i:i + chunk] = v[:, :B], v[:, B:2 * B]
+        shape = np.broadcast_shapes(np.shape(cos_theta), np.shape(thickness_nm))
+        return S0.reshape(shape + (B,)), P.reshape(shape + (B,))
+
+    def rgb_s0_p(self, cos_theta, thickness_nm, chunk: int = 1 << 18):
+        """Camera-RGB ``(S0, P)``, each ``shape + (3,)`` (the bands integrated out with the
+        camera weights): the model's polarizer images at 0° and 90° in the plane of incidence,
+        ``S0 = I(0°) + I(90°)``, ``P = I(0°) - I(90°)``."""
+        c, d = self._nodes(cos_theta, thickness_nm)
+        S0, P = np.empty((c.size, 3)), np.empty((c.size, 3))
+        for i in range(0, c.size, chunk):
+            v = self.model.evaluate("polarized_rgb", np.stack([c[i:i + chunk], d[i:i + chunk]], axis=1),
+                                    INCIDENCE, angles_deg=(0, 90))
+            S0[i:i + chunk], P[i:i + chunk] = v[:, :3] + v[:, 3:], v[:, :3] - v[:, 3:]
+        shape = np.broadcast_shapes(np.shape(cos_theta), np.shape(thickness_nm))
         return S0.reshape(shape + (3,)), P.reshape(shape + (3,))
 
+    @staticmethod
+    def _nodes(cos_theta, thickness_nm):
+        c, d = np.broadcast_arrays(np.asarray(cos_theta, dtype=np.float64), np.asarray(thickness_nm, dtype=np.float64))
+        return c.ravel(), d.ravel()
+
     def rgb_stokes(self, zenith_deg, azimuth_deg, thickness_nm):
-        """Camera-RGB Stokes ``(S0, S1, S2)`` in the image frame, each ``shape + (3,)``
-        (:func:`thinfilm.core.conventions.specular_stokes` of the camera RGB of R_s and R_p)."""
-        S0, P = self.rgb_s0_p(np.cos(np.radians(zenith_deg)), thickness_nm)
-        return specular_stokes(S0 + P, S0 - P, azimuth_deg)
+        """Camera-RGB Stokes ``(S0, S1, S2)`` in the image frame, each ``shape + (3,)``: the
+        model's band Stokes cube of the normals ``(zenith, azimuth)`` through the camera
+        weights."""
+        t, p = np.radians(np.asarray(zenith_deg, dtype=np.float64)), np.radians(np.asarray(azimuth_deg, dtype=np.float64))
+        t, p, d = np.broadcast_arrays(t, p, np.asarray(thickness_nm, dtype=np.float64))
+        normals = np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], axis=-1).reshape(-1, 3)
+        s = self.model.stokes(normals, d.ravel())
+        W = self.rig.camera_weights()
+        return tuple((s[k] @ W).reshape(t.shape + (3,)) for k in ("S0", "S1", "S2"))
 
     def polarized_rgb(self, zenith_deg, azimuth_deg, thickness_nm, angles_deg):
         """Noise-free camera RGB behind the polarizer at each angle: ``{angle: shape + (3,)}``."""
@@ -166,7 +188,7 @@ def _bspline_weights(x, x0: float, h: float, n: int):
 @dataclass
 class FilmTable:
     """The camera-RGB model of a :class:`FilmCamera` as a bicubic spline in
-    ``(cos θ, thickness)``, built from values of the optics core on a regular grid.
+    ``(cos θ, thickness)``, built from values of the observation model on a regular grid.
 
     Two quantities per RGB channel are tabulated: ``S0`` and ``Q = P / sin² θ``. Both are
     smooth (analytic) functions of ``cos θ`` on the whole domain, normal incidence included
@@ -234,41 +256,25 @@ class FilmTable:
         return f[:, 0, :3], f[:, 0, 3:], f[:, 1, :3], f[:, 1, 3:], f[:, 2, :3], f[:, 2, 3:]
 
 
-#: grid size from which :func:`film_table` evaluates the optics core on Dr.Jit's LLVM backend
-#: even when Dr.Jit is not loaded yet
-LLVM_MIN_NODES = 40000
-
-
-def _llvm_available() -> bool:
-    try:
-        import drjit as dr
-
-        return bool(dr.has_backend(dr.JitBackend.LLVM))
-    except Exception:  # no Dr.Jit, or no LLVM library on this machine
-        return False
-
-
 def film_table(model: FilmCamera, thickness_range_nm, zenith_max_deg: float = 89.5,
-               phase_step_rad: float = 0.35, backend: str = "auto") -> FilmTable:
-    """Tabulate ``model`` (through the optics core) as a :class:`FilmTable`.
+               phase_step_rad: float = 0.35) -> FilmTable:
+    """Tabulate ``model`` (the observation model's camera RGB) as a :class:`FilmTable`.
 
     The grid is fine enough that the film's round-trip phase ``4π n2 cos θ2 d / λ`` changes
-    by at most ``phase_step_rad`` between neighbouring nodes, at the shortest wavelength and
-    the largest film index, both along the thickness and along ``cos θ`` (where the phase
-    changes fastest at the thickest film). With the default step the spline reproduces the
-    optics core to about 10⁻⁵ of the reflectance (errors scale as the step to the fourth).
-
-    ``backend``: how the optics core is evaluated on the grid, ``"numpy"``, ``"llvm"``
-    (Dr.Jit, double precision) or ``"auto"``: LLVM when Dr.Jit has it and either Dr.Jit is
-    already loaded or the grid has more than :data:`LLVM_MIN_NODES` nodes.
+    by at most ``phase_step_rad`` between neighbouring nodes, at the shortest wavelength the
+    bands integrate and the largest film index, both along the thickness and along ``cos θ``
+    (where the phase changes fastest at the thickest film). With the default step the spline
+    reproduces the model to about 10⁻⁵ of the reflectance (errors scale as the step to the
+    fourth).
 
     The ``cos θ`` nodes are placed half a step either side of normal incidence (never on
-    it), since ``Q = P / sin² θ`` is computed from the optics core's ``P`` at each node; the
-    grid reaches a step beyond the domain at both ends.
+    it), since ``Q = P / sin² θ`` is computed from the model's ``P`` at each node; the grid
+    reaches a step beyond the domain at both ends (:data:`INCIDENCE`).
     """
     lo, hi = (float(v) for v in thickness_range_nm)
-    lam_min = float(np.min(model.wavelengths_nm))
-    n2_max = float(np.max(model._n2))
+    lam = model.model.sub_nm                                  # the wavelengths the bands integrate
+    lam_min = float(np.min(lam))
+    n2_max = float(np.max(model.film.layers[0].n_k(lam)[0]))
     k_max = 4.0 * np.pi * n2_max / lam_min                    # dΔ/dd at most (rad per nm)
     h_d = phase_step_rad / k_max
     n_d = max(4, int(np.ceil((hi - lo) / h_d)) + 1)
@@ -281,12 +287,7 @@ def film_table(model: FilmCamera, thickness_range_nm, zenith_max_deg: float = 89
     n_c = max(4, int(np.ceil((1.0 + 0.5 * h_c - c_min) / h_c)) + 2)
     c_nodes = 1.0 + 0.5 * h_c - h_c * np.arange(n_c)[::-1]
     d_nodes = lo + h_d * np.arange(n_d)
-    if backend == "auto":
-        # Dr.Jit's import and LLVM start-up (~0.3 s) pay off on large grids, or at once when
-        # the process already has Dr.Jit loaded (e.g. next to Mitsuba).
-        loaded = "drjit" in sys.modules
-        backend = "llvm" if (loaded or n_c * n_d > LLVM_MIN_NODES) and _llvm_available() else "numpy"
-    S0, P = model.rgb_s0_p(c_nodes[:, None], d_nodes[None, :], chunk=16384, backend=backend)   # (Nc, Nd, 3)
+    S0, P = model.rgb_s0_p(c_nodes[:, None], d_nodes[None, :])      # (Nc, Nd, 3)
     u = 1.0 - c_nodes ** 2
     data = np.concatenate([S0, P / u[:, None, None]], axis=-1)     # (Nc, Nd, 6)
     coef = _not_a_knot_coefficients(_not_a_knot_coefficients(data, 0), 1)

@@ -119,9 +119,10 @@ def reconstruct_kobayashi2023(capture: RGBCapture, progress: bool = False) -> Es
     zen_step = 0.5
     rows = np.round(np.where(mask, zenith, 0.0) / zen_step).astype(int)
     thickness = np.zeros(mask.shape)
-    for r in progress_iter(np.unique(rows[mask]), "thickness table", progress):
-        sel = mask & (rows == r)
-        S0_tab, _ = capture.model.rgb_s0_p(np.cos(np.radians(r * zen_step)), thick_grid)   # (D, 3)
+    used = np.unique(rows[mask])
+    S0_tabs, _ = capture.model.rgb_s0_p(np.cos(np.radians(used * zen_step))[:, None], thick_grid[None, :])
+    for r, S0_tab in progress_iter(zip(used, S0_tabs), "thickness table", progress, total=used.size):
+        sel = mask & (rows == r)                                         # S0_tab: (D, 3)
         err = np.sum((S0[sel][:, None, :] - S0_tab[None, :, :]) ** 2, axis=-1)
         thickness[sel] = thick_grid[np.argmin(err, axis=1)]
     timings["thickness"] = time.perf_counter() - t1
