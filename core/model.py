@@ -94,6 +94,7 @@ __all__ = [
     "PixelState",
     "ObservationModel",
     "Observations",
+    "Spectrometer",
     "Parametrization",
     "PARAMETRIZATIONS",
     "state_from_normals",
@@ -445,10 +446,14 @@ class ObservationModel:
     precision : {"double", "single"}
     quadrature : {"passband", "centre"}
         Band integration (see :data:`QUADRATURES`).
+    lossless : bool, optional
+        Whether every medium is lossless with an index at least the exterior's, so that the
+        kernels may keep the normal components real (half the arithmetic); default: decided
+        from the film. Pass False when index offsets may take an index below the exterior's.
     """
 
     def __init__(self, rig: Rig, film, backend: str = "llvm", precision: str = "double",
-                 quadrature: str = "passband"):
+                 quadrature: str = "passband", lossless: bool | None = None):
         self.rig = rig
         self.film = film
         self.backend = backend
@@ -465,7 +470,8 @@ class ObservationModel:
         self._ext = float(film.ext_ior)
         # lossless media of indices at least the exterior's: real normal components (half the
         # kernel's arithmetic); index offsets must then keep every index there
-        self.lossless = bool(all(not np.any(k) and np.min(n) >= self._ext for n, k in [*self._n, self._sub]))
+        auto = bool(all(not np.any(k) and np.min(n) >= self._ext for n, k in [*self._n, self._sub]))
+        self.lossless = auto if lossless is None else bool(lossless) and auto
         self._t = None
 
     # -- Dr.Jit --------------------------------------------------------------------------------
@@ -987,6 +993,79 @@ class Observations:
                 for p in range(P):
                     J[p].append(-w * (0.5 * tans[p][c] + ca * tans[p][3 + c] + sa * tans[p][6 + c]))
         return r, J
+
+
+# ---------------------------------------------------------------------------------------------
+# A spectrometer
+# ---------------------------------------------------------------------------------------------
+
+
+class Spectrometer:
+    """A spectrometer's reading of a flat film: the unpolarized reflectance ``(R_s + R_p)/2``
+    at one angle of incidence, point-sampled at given wavelengths, and its derivatives by AD
+    in the thickness and in an offset added to the film's index.
+
+    The rig is an :class:`ObservationModel` with point-sampled bands at the wavelengths, and a
+    pixel the ``zenith`` parametrization at the angle of incidence, plane of incidence along the
+    reference axis; ``S0`` is the unpolarized reflectance. What an instrument adds (background,
+    response, the width of its pixels) is the caller's (:mod:`thinfilm.reconstruction.spectrum_fit`).
+
+    Parameters
+    ----------
+    film : :class:`thinfilm.core.film.Film`
+        A single film (its thickness is given per call).
+    wavelengths_nm : (n,) increasing wavelengths.
+    angle_deg : angle of incidence in the exterior medium, degrees.
+    backend, precision : see :class:`ObservationModel`.
+
+    Examples
+    --------
+    >>> from thinfilm.core.film import Film
+    >>> from thinfilm.bsdf import optics
+    >>> lam = np.linspace(450.0, 800.0, 8)
+    >>> spot = Spectrometer(Film.single(1.33, substrate_ior=1.0), lam, angle_deg=30.0)
+    >>> R, dR = spot.reflectance([1200.0], derivatives=True)
+    >>> Rs, Rp = optics.reflectances(np.cos(np.radians(30.0)), lam, 1200.0, 1.33, 1.0)
+    >>> bool(np.allclose(R[0], (Rs + Rp) / 2, rtol=0, atol=1e-12)), dR.shape
+    (True, (1, 8, 1))
+    """
+
+    def __init__(self, film, wavelengths_nm, angle_deg: float = 0.0, backend: str = "llvm",
+                 precision: str = "double"):
+        lam = np.asarray(wavelengths_nm, dtype=np.float64).ravel()
+        if not film.is_single:
+            raise ValueError("a spectrometer reading is modelled for a single film")
+        if not (math.isfinite(angle_deg) and 0.0 <= angle_deg < 90.0):
+            raise ValueError(f"angle_deg must be in [0, 90), got {angle_deg}")
+        self.film = film
+        self.wavelengths_nm = lam
+        self.angle_rad = math.radians(angle_deg)
+        self._args = (Rig(wavelengths_nm=tuple(lam)), film, backend, precision, "centre")
+        self._models = {}
+        self._n_min = float(np.min(film.layers[0].n_k(lam)[0]))
+
+    def _model(self, index_offset) -> ObservationModel:
+        # an offset taking the film below the exterior's index needs complex normal components
+        lossless = index_offset is None or self._n_min + float(np.min(index_offset)) >= self.film.ext_ior
+        if lossless not in self._models:
+            self._models[lossless] = ObservationModel(*self._args, lossless=None if lossless else False)
+        return self._models[lossless]
+
+    def reflectance(self, thickness_nm, index_offset=None, derivatives: bool = False):
+        """The reflectance of films of thicknesses ``thickness_nm`` (K,) with index offsets
+        ``index_offset`` (K,) or None: (K, n); with ``derivatives`` also (K, n, Q), the
+        derivatives by the thickness and (where offsets are given) by the offset."""
+        d = np.asarray(thickness_nm, dtype=np.float64).ravel()
+        cols = [np.full(d.size, self.angle_rad), d]
+        if index_offset is not None:
+            cols.append(np.broadcast_to(np.asarray(index_offset, dtype=np.float64).ravel(), d.shape))
+        x = np.stack(cols, axis=1)
+        model = self._model(index_offset)
+        n = self.wavelengths_nm.size
+        if not derivatives:
+            return model.evaluate("stokes", x, "zenith")[:, :n]
+        values, jac = model.evaluate("stokes", x, "zenith", derivatives=True, wrt=list(range(1, x.shape[1])))
+        return values[:, :n], jac[:, :n, :]
 
 
 # ---------------------------------------------------------------------------------------------

@@ -5,8 +5,9 @@ A spectrometer reading of a thin film is modelled as
     I(λ) = B(λ) + G(λ) · R(λ; d, n2, θ) + noise,
 
 with ``R`` the unpolarized reflectance ``(R_s + R_p)/2`` of the film (thickness ``d``, index
-``n2(λ)``) on its substrate at the angle of incidence ``θ``, computed by the optics core
-:mod:`thinfilm.bsdf.optics`, ``B`` a background (dark current, stray light) and ``G`` the
+``n2(λ)``) on its substrate at the angle of incidence ``θ``, given with its derivatives (by
+automatic differentiation) by the project's observation model
+(:class:`thinfilm.core.model.Spectrometer`), ``B`` a background (dark current, stray light) and ``G`` the
 instrument response (lamp × optics × detector). ``B`` and ``G`` are unknown unless measured:
 
 * a **background** spectrum (a black film, a dark reading) fixes ``B``; without one, ``B`` is a
@@ -44,8 +45,8 @@ Algorithm (the user chooses no method and no interference order):
    that a grid point a fraction of a fringe off the truth still ranks it first however high
    the signal-to-noise ratio;
 2. the two lowest local minima of the profile and the lowest plausible one are **refined** by
-   Levenberg-Marquardt on the variable-projection residual (Kaufman's Jacobian, all spectra
-   batched) over ``d`` and, with ``fit_film_ior``, an offset ``δ`` added to the film's
+   Levenberg-Marquardt (the project's one solver, :func:`thinfilm.reconstruction.lm.levenberg_marquardt`)
+   on the variable-projection residual (Kaufman's Jacobian, all spectra batched) over ``d`` and, with ``fit_film_ior``, an offset ``δ`` added to the film's
    dispersion ``n2(λ) + δ``. The lowest BIC wins, unless it is implausible and a plausible
    candidate comes within 25 of it. With ``fit_film_ior`` the valley of equal optical
    thickness ``n2 d`` (which the fringes fix far better than ``n2`` and ``d`` apart) is then
@@ -98,8 +99,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from thinfilm.bsdf import optics
-from thinfilm.bsdf.materials import as_dispersion
+from thinfilm.bsdf.materials import Constant, Tabulated, as_dispersion
+from thinfilm.core.film import Film, Layer
+from thinfilm.core.model import Spectrometer
+
+from .lm import levenberg_marquardt
 
 __all__ = [
     "FilmModel",
@@ -172,6 +176,22 @@ class FilmModel:
     def __post_init__(self):
         object.__setattr__(self, "film_ior", as_dispersion(self.film_ior))
         object.__setattr__(self, "substrate_ior", as_dispersion(self.substrate_ior))
+        if not (np.isfinite(self.angle_deg) and 0.0 <= self.angle_deg < 90.0):
+            raise ValueError(f"angle_deg must be in [0, 90), got {self.angle_deg}")
+
+    def film(self) -> Film:
+        """The film as the observation model takes it (:class:`thinfilm.core.film.Film`), with
+        ``substrate_k`` replacing the substrate's own extinction where given."""
+        sub = self.substrate_ior
+        if self.substrate_k is not None:
+            k = float(self.substrate_k)
+            if isinstance(sub, Constant):
+                sub = Constant(sub.n, k)
+            elif isinstance(sub, Tabulated):
+                sub = Tabulated(sub.name, sub.start_nm, sub.step_nm, sub.n_values, (k,) * len(sub.n_values))
+            else:
+                raise ValueError("substrate_k needs a numeric or tabulated substrate index")
+        return Film((Layer(self.film_ior),), sub, float(self.ext_ior))
 
     def indices(self, wavelengths_nm):
         """``(n2, k2, n3, k3)`` at the given wavelengths (NumPy arrays)."""
@@ -186,16 +206,17 @@ class FilmModel:
         return n2, k2, n3, k3
 
     def reflectance(self, wavelengths_nm, thickness_nm, film_ior_offset=0.0):
-        """Unpolarized reflectance ``(R_s + R_p)/2``; arguments broadcast (NumPy).
+        """Unpolarized reflectance ``(R_s + R_p)/2`` (:class:`thinfilm.core.model.Spectrometer`);
+        arguments broadcast (NumPy).
 
         ``film_ior_offset`` is added to the film's real index at every wavelength.
         """
-        lam = np.asarray(wavelengths_nm, dtype=np.float64)
-        n2, k2, n3, k3 = self.indices(lam)
-        R_s, R_p = optics.reflectances(
-            np.cos(np.radians(self.angle_deg)), lam, thickness_nm, n2 + film_ior_offset, n3,
-            k3, self.ext_ior, k2)
-        return 0.5 * (R_s + R_p)
+        lam, d, off = np.broadcast_arrays(*(np.asarray(v, dtype=np.float64)
+                                            for v in (wavelengths_nm, thickness_nm, film_ior_offset)))
+        grid, at = np.unique(lam, return_inverse=True)
+        pairs, row = np.unique(np.stack([d.ravel(), off.ravel()], axis=1), axis=0, return_inverse=True)
+        R = Spectrometer(self.film(), grid, self.angle_deg).reflectance(pairs[:, 0], pairs[:, 1])
+        return R[row.ravel(), at.ravel()].reshape(lam.shape)
 
     def phase_index(self, wavelengths_nm, film_ior_offset=0.0):
         """``n2 cos θ2 = sqrt(n2² − n1² sin² θ1)``: the round-trip phase is ``4π d · this / λ``."""
@@ -322,8 +343,7 @@ class _Problem:
         period = lam * lam / (2.0 * model.phase_index(lam) * self.d_hi)
         self.m = int(np.clip(np.ceil(12.0 * np.max(width / period)), 1, _MAX_SUBSAMPLES))
         self.lam_sub = _pixels(lam, self.m)[0].reshape(-1)
-        self.n2, self.k2, self.n3, self.k3 = model.indices(self.lam_sub)
-        self.cos1 = float(np.cos(np.radians(model.angle_deg)))
+        self.spectrometer = Spectrometer(model.film(), self.lam_sub, model.angle_deg)
         self.lam_ref = 0.5 * (lam[0] + lam[-1])
         self.n_ref = float(model.indices(np.array([self.lam_ref]))[0][0])
 
@@ -372,13 +392,17 @@ class _Problem:
         p = self.p_b + g + self.k
         return self.n * np.log(np.maximum(rss, 1e-14 * scale2) / self.n) + p * np.log(self.n)
 
-    def reflectance(self, d, delta=None):
-        """R averaged over each pixel for thicknesses ``d`` (K,), index offsets ``delta`` (K,)."""
-        d = np.asarray(d, dtype=np.float64)[:, None]
-        n2 = self.n2[None, :] if delta is None else self.n2[None, :] + np.asarray(delta)[:, None]
-        R_s, R_p = optics.reflectances(self.cos1, self.lam_sub[None, :], d, n2, self.n3, self.k3,
-                                       self.model.ext_ior, self.k2)
-        return (0.5 * (R_s + R_p)).reshape(d.shape[0], self.n, self.m).mean(axis=2)
+    def reflectance(self, d, delta=None, derivatives=False):
+        """R averaged over each pixel (K, n) for thicknesses ``d`` (K,), index offsets ``delta``
+        (K,); with ``derivatives`` also its derivatives (K, n, 1 or 2) by ``d`` (and ``delta``)."""
+        d = np.asarray(d, dtype=np.float64)
+        K = d.size
+        out = self.spectrometer.reflectance(d, delta, derivatives)
+        if not derivatives:
+            return out.reshape(K, self.n, self.m).mean(axis=2)
+        R, dR = out
+        return (R.reshape(K, self.n, self.m).mean(axis=2),
+                dR.reshape(K, self.n, self.m, -1).mean(axis=2))
 
     def design(self, R, g=None, derivative=False):
         """Design matrices (K, n, p_b + g) for reflectances R (K, n), ``g`` response columns
@@ -482,7 +506,6 @@ def _profile(problem, Y, grid, chunk=16):
     y_max = np.max(np.abs(Y), axis=1)
     K = grid.size
     h = grid[1] - grid[0]
-    h_d = 1e-4 * problem.lam[0] / problem.q_max
     bic_out = np.empty((K, S))
     any_out = np.empty((K, S))
     d_out = np.empty((K, S))
@@ -491,9 +514,9 @@ def _profile(problem, Y, grid, chunk=16):
     for start in range(0, K, chunk):
         d = grid[start:start + chunk]
         g = problem.gain_columns(d)
-        R = problem.reflectance(d)
+        R, dR = problem.reflectance(d, derivatives=True)
         A = problem.design(R)
-        dA = problem.design((problem.reflectance(d + h_d) - R) / h_d, derivative=True)
+        dA = problem.design(dR[:, :, 0], derivative=True)
         P = A.shape[2]
         Q, Rr = _qr(A)
         proj = np.swapaxes(Q, 1, 2) @ Yt  # (k, P, S)
@@ -569,55 +592,37 @@ class _State:
     The linear coefficients come from the normal equations, assembled from the bases without
     forming the (N, n, p) design matrices; residuals are computed explicitly."""
 
-    FIELDS = ("theta", "coef", "fitted", "resid", "cost", "plausible", "R", "gram", "J", "JtJ", "Jtr")
-
     def __init__(self, problem, Y, theta, g, jacobian=True):
         self.problem, self.g = problem, g
         self.theta = theta
         d, delta = self.split(theta)
-        self.R = problem.reflectance(d, delta)
+        if jacobian:
+            self.R, self.dR = problem.reflectance(d, delta, derivatives=True)
+        else:
+            self.R = problem.reflectance(d, delta)
         self.gram = problem.gram(self.R, g)
         self.coef = _normal_solve(self.gram, problem.at(self.R, g, Y[:, :, None]))[:, :, 0]
         self.fitted = problem.a(self.R, g, self.coef[:, :, None])[:, :, 0]
         self.resid = Y - self.fitted
         self.cost = np.einsum("ni,ni->n", self.resid, self.resid)
         self.plausible = problem.plausible(self.coef[:, :, None], np.max(np.abs(Y), axis=1)[:, None])[:, 0]
-        k = theta.shape[1]
-        self.J = np.zeros(Y.shape + (k,))
-        self.JtJ = np.zeros((theta.shape[0], k, k))
-        self.Jtr = np.zeros((theta.shape[0], k))
         if jacobian:
-            self.jacobian(np.ones(theta.shape[0], dtype=bool))
+            self.jacobian()
 
     @staticmethod
     def split(theta):
         return theta[:, 0], (theta[:, 1] if theta.shape[1] > 1 else None)
 
-    def jacobian(self, rows):
+    def jacobian(self):
         """Fill ``J`` (the Jacobian with the linear parameters profiled out, Kaufman's form
-        ``(1 − P_A) ∂(A c)/∂θ``), ``J^T J`` and ``J^T r`` for ``rows``."""
-        problem, g = self.problem, self.g
-        rows = np.flatnonzero(rows)
-        if rows.size == 0:
-            return
-        d, delta = self.split(self.theta[rows])
-        R = self.R[rows]
-        gain = self.coef[rows, problem.p_b:] @ problem.gain[:, :g].T  # G(λ) per problem
-        h_d = 1e-4 * problem.lam[0] / problem.q_max
-        cols = [(problem.reflectance(d + h_d, delta) - R) * (gain / h_d)]
-        if delta is not None:
-            h_n = 1e-6
-            cols.append((problem.reflectance(d, delta + h_n) - R) * (gain / h_n))
-        J = np.stack(cols, axis=2)  # ∂(A c)/∂θ at fixed c
-        J = J - problem.a(R, g, _normal_solve(self.gram[rows], problem.at(R, g, J)))
-        self.J[rows] = J
-        self.JtJ[rows] = np.swapaxes(J, 1, 2) @ J
-        self.Jtr[rows] = np.einsum("nik,ni->nk", J, self.resid[rows])
-
-    def take(self, rows, other, mask):
-        """Replace ``rows`` of this state by the rows ``mask`` of ``other``."""
-        for name in self.FIELDS:
-            getattr(self, name)[rows] = getattr(other, name)[mask]
+        ``(1 − P_A) ∂(A c)/∂θ``, from the model's derivatives of R), ``J^T J`` and ``J^T r``."""
+        problem, g, R = self.problem, self.g, self.R
+        gain = self.coef[:, problem.p_b:] @ problem.gain[:, :g].T  # G(λ) per problem
+        J = self.dR * gain[:, :, None]  # ∂(A c)/∂θ at fixed c
+        J = J - problem.a(R, g, _normal_solve(self.gram, problem.at(R, g, J)))
+        self.J = J
+        self.JtJ = np.swapaxes(J, 1, 2) @ J
+        self.Jtr = np.einsum("nik,ni->nk", J, self.resid)
 
 
 def _clip(problem, theta):
@@ -628,39 +633,52 @@ def _clip(problem, theta):
 
 
 def _levenberg_marquardt(problem, Y, theta, g, iterations=30, freeze_index=False):
-    """Levenberg-Marquardt for N independent problems with ``g`` response columns; each
-    iteration evaluates only the problems still moving.
+    """Levenberg-Marquardt (:func:`thinfilm.reconstruction.lm.levenberg_marquardt`) for N
+    independent problems with ``g`` response columns; returns ``(theta, cost, plausible)``.
 
-    A problem stops when an accepted step falls below 1 % of its thickness sigma (or 1e-3 nm)
-    and the index step below 1e-6, or when its damping grows past 1e4."""
+    The solver's normal equations are the variable-projection ones of :class:`_State` (the
+    linear coefficients profiled out). With ``freeze_index`` the index offsets stay where they
+    are and the steps are in ``d`` alone. A problem stops when an accepted step falls below 1 %
+    of its thickness sigma (or 1e-3 nm) and the index step below 1e-6, or when its damping
+    grows past 1e4."""
     N, k = theta.shape
     n = Y.shape[1]
-    mu = np.full(N, 1e-3)
-    cur = _State(problem, Y, theta, g)
-    active = np.ones(N, dtype=bool)
-    eye = np.eye(k)[None]
+    free = 1 if freeze_index else k
+    fixed = theta[:, free:].copy()
     dof = max(n - problem.p_b - g - k, 1)
-    for _ in range(iterations):
-        idx = np.flatnonzero(active)
-        if idx.size == 0:
-            break
-        H, grad = cur.JtJ[idx], cur.Jtr[idx]
-        free = 1 if freeze_index else k  # a frozen index offset: steps in d alone
-        H, grad = H[:, :free, :free], grad[:, :free]
-        diag = np.maximum(np.einsum("nkk->nk", H), 1e-300)
-        step = np.zeros((idx.size, k))
-        step[:, :free] = np.linalg.solve(H + (mu[idx, None] * diag)[:, :, None] * eye[:, :free, :free],
-                                         grad[:, :, None])[:, :, 0]
-        new = _State(problem, Y[idx], _clip(problem, cur.theta[idx] + step), g, jacobian=False)
-        better = new.cost < cur.cost[idx]
-        new.jacobian(better)
-        cur.take(idx[better], new, better)
-        mu[idx] = np.where(better, mu[idx] / 5.0, mu[idx] * 4.0)
-        sigma = np.sqrt(cur.cost[idx] / dof / diag[:, 0])
-        small = (np.abs(step[:, 0]) < np.maximum(1e-3, 0.01 * sigma)) & (
-            (k < 2) | (np.abs(step[:, -1]) < 1e-6))
-        active[idx] = ~((better & small) | (mu[idx] > 1e4))
-    return cur
+
+    def full(x, idx):
+        return np.concatenate([x, fixed[idx]], axis=1) if free < k else x
+
+    def normal_equations(x, idx):
+        st = _State(problem, Y[idx], full(x, idx), g)
+        return st.JtJ[:, :free, :free], st.Jtr[:, :free], st.cost, st.plausible
+
+    def project(x):
+        if free == k:
+            return _clip(problem, x)
+        x[:, 0] = np.clip(x[:, 0], problem.d_lo, problem.d_hi)
+        return x
+
+    def converged(step, H, cost, accepted):
+        sigma = np.sqrt(cost / dof / np.maximum(H[:, 0, 0], 1e-300))
+        small = np.abs(step[:, 0]) < np.maximum(1e-3, 0.01 * sigma)
+        if free > 1:
+            small &= np.abs(step[:, -1]) < 1e-6
+        return accepted & small
+
+    # the normal equations are JᵀJ and Jᵀ(y − fit): the descent step is +(H + μD)⁻¹ Jᵀr
+    fit = levenberg_marquardt(theta[:, :free], lambda x, idx: _negated(normal_equations(x, idx)), iterations,
+                              project=project, lam0=1e-3, lam_down=0.2, lam_up=4.0, lam_max=1e4,
+                              floor_rel=0.0, floor_abs=1e-300, converged=converged)
+    return full(fit.x, np.arange(N)), fit.cost, fit.aux.astype(bool)
+
+
+def _negated(terms):
+    """Normal equations with the gradient's sign flipped: :class:`_State` keeps ``Jᵀr`` for
+    residuals ``r = y − fit``, the solver takes the gradient of the residuals ``fit − y``."""
+    H, g, cost, aux = terms
+    return H, -g, cost, aux
 
 
 def _refine(problem, Y, theta, g, freeze_index=False, iterations=30):
@@ -671,8 +689,8 @@ def _refine(problem, Y, theta, g, freeze_index=False, iterations=30):
     plausible = np.empty(theta.shape[0], dtype=bool)
     for gv in np.unique(g):
         sel = np.flatnonzero(g == gv)
-        st = _levenberg_marquardt(problem, Y[sel], theta[sel].copy(), int(gv), iterations, freeze_index)
-        theta_out[sel], cost[sel], plausible[sel] = st.theta, st.cost, st.plausible
+        theta_out[sel], cost[sel], plausible[sel] = _levenberg_marquardt(
+            problem, Y[sel], theta[sel].copy(), int(gv), iterations, freeze_index)
     return theta_out, cost, plausible
 
 
