@@ -33,7 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["LMResult", "levenberg_marquardt", "solve_small"]
+__all__ = ["LMResult", "levenberg_marquardt", "solve_small", "solve_arrow"]
 
 
 @dataclass
@@ -63,10 +63,38 @@ def solve_small(A, b):
     return np.linalg.solve(A, b[:, :, None])[:, :, 0]
 
 
+def solve_arrow(A, b, block: int):
+    """Solve ``A x = b`` for "arrow" matrices: one shared parameter first, then blocks of
+    ``block`` parameters that couple only to themselves and to the shared one (a joint fit of
+    one object-wide value and every pixel's own), by the Schur complement on the shared one.
+
+    ``A`` (n, P, P) with ``P = 1 + block m``; entries outside the arrow are ignored.
+
+    >>> rng = np.random.default_rng(0)
+    >>> M = np.zeros((7, 7)); M[0] = M[:, 0] = rng.normal(size=7)
+    >>> for i in range(3):
+    ...     B = rng.normal(size=(2, 2)); M[1 + 2 * i:3 + 2 * i, 1 + 2 * i:3 + 2 * i] = B @ B.T + 3 * np.eye(2)
+    >>> M[0, 0] = 40.0; b = rng.normal(size=7)
+    >>> bool(np.allclose(solve_arrow(M[None], b[None], 2)[0], np.linalg.solve(M, b)))
+    True
+    """
+    n, P = b.shape
+    m = (P - 1) // block
+    idx = 1 + np.arange(m * block).reshape(m, block)
+    blocks = A[:, idx[:, :, None], idx[:, None, :]]                    # (n, m, block, block)
+    c = A[:, 0, 1:].reshape(n, m, block)
+    rest = b[:, 1:].reshape(n, m, block)
+    Bc = np.linalg.solve(blocks, c[..., None])[..., 0]                 # B⁻¹ c
+    Bb = np.linalg.solve(blocks, rest[..., None])[..., 0]              # B⁻¹ b
+    schur = A[:, 0, 0] - np.einsum("nmk,nmk->n", c, Bc)
+    x0 = (b[:, 0] - np.einsum("nmk,nmk->n", c, Bb)) / schur
+    return np.concatenate([x0[:, None], (Bb - Bc * x0[:, None, None]).reshape(n, m * block)], axis=1)
+
+
 def levenberg_marquardt(x0, normal_equations, iterations: int, *, project=None, max_step=None,
                         step_tol=None, rel_tol: float = 0.0, lam0: float = 1e-3, lam_down: float = 0.3,
                         lam_up: float = 10.0, lam_min: float = 0.0, lam_max: float = 1e8,
-                        floor_rel: float = 1e-9, floor_abs: float = 0.0) -> LMResult:
+                        floor_rel: float = 1e-9, floor_abs: float = 0.0, converged=None, solve=None) -> LMResult:
     """Minimise every pixel's cost from ``x0`` (N, P).
 
     Parameters
@@ -83,6 +111,14 @@ def levenberg_marquardt(x0, normal_equations, iterations: int, *, project=None, 
     lam0, lam_down, lam_up, lam_min, lam_max : damping start, factors on success and failure,
         lower bound; a pixel whose damping exceeds ``lam_max`` stops.
     floor_rel, floor_abs : the damping's diagonal is ``max(H_ii, floor_rel max_j H_jj) + floor_abs``.
+    converged : callable ``(step (n, P), H (n, P, P), cost (n,), accepted (n,)) -> (n,) bool``, optional
+        A stopping rule of the caller's: the pixels for which it returns True stop. It sees
+        each active pixel's step, the normal matrix and cost the step was made from, and
+        whether the step was accepted (for example: an accepted step below a fraction of the
+        parameter's standard error ``sqrt(cost / dof / H_ii)``).
+    solve : callable ``(A (n, P, P), b (n, P)) -> (n, P)``, optional
+        Solver of the damped systems, for problems with structure (default :func:`solve_small`;
+        :func:`solve_arrow` for one shared parameter and many pixels' own).
     """
     x = np.array(x0, dtype=np.float64)
     N, P = x.shape
@@ -100,11 +136,11 @@ def levenberg_marquardt(x0, normal_equations, iterations: int, *, project=None, 
         if idx.size == 0:
             it -= 1
             break
-        Hi = H[idx]
+        Hi, cost_i = H[idx], cost[idx]
         diag = np.einsum("nii->ni", Hi)
         scale = np.maximum(diag, floor_rel * diag.max(axis=1, keepdims=True)) + floor_abs
         A = Hi + (lam[idx][:, None] * scale)[:, :, None] * np.eye(P)[None]
-        step = -solve_small(A, g[idx])
+        step = -(solve_small if solve is None else solve)(A, g[idx])
         if max_step is not None:
             step = np.clip(step, -max_step, max_step)
         xn = x[idx] + step
@@ -127,6 +163,8 @@ def levenberg_marquardt(x0, normal_equations, iterations: int, *, project=None, 
             done[idx] = np.all(np.abs(step) < step_tol, axis=1)
         if rel_tol > 0:
             done[ib] |= rel < rel_tol
+        if converged is not None:
+            done[idx] |= np.asarray(converged(step, Hi, cost_i, better), dtype=bool)
         done[idx] |= lam[idx] >= lam_max
         active &= ~done
     return LMResult(x, H, g, cost, aux, it)

@@ -20,7 +20,7 @@ from scipy import ndimage
 from thinfilm.core.errors import UserError
 
 from . import spectral_model as _sm
-from .lm import levenberg_marquardt
+from .lm import levenberg_marquardt, solve_arrow
 
 __all__ = ["MAX_THICKNESS_NM", "FILM_IOR_MAX", "ThicknessRange", "thickness_limits", "fit_angle_thickness",
            "initial_thickness", "estimate_film_ior", "estimate_film_ior_either_side", "extrema_angles",
@@ -237,48 +237,52 @@ def initial_thickness(spectra, theta_rad, peak_wl_nm, film_ior, substrate_ior, w
 
 
 def joint_film_ior(S, th, d, n2, n3, wl, iterations=15, bounds=None):
-    """Gauss-Newton over one shared n2 and every pixel's (θ, d) (Schur complement on n2);
+    """Least squares over one shared n2 and every pixel's (θ, d): one problem of ``1 + 2 N``
+    unknowns for :func:`thinfilm.reconstruction.lm.levenberg_marquardt`, its damped systems
+    solved by the Schur complement on n2 (:func:`thinfilm.reconstruction.lm.solve_arrow`).
     ``S`` holds s spectra (N, B) or s then p spectra (N, 2 B); n2 stays within ``bounds``
-    (default: below the substrate's index)."""
-    th, d = th.copy(), d.copy()
+    (default: below the substrate's index); steps are at most 0.05 in n2, 0.2 rad in θ and
+    40 nm in d. Returns ``(n2, θ, d, sse)``."""
+    th, d = np.asarray(th, dtype=np.float64), np.asarray(d, dtype=np.float64)
+    N = th.size
     n2_lo, n2_hi = (1.0, n3 - 1e-3) if bounds is None else bounds
     with_p = S.shape[1] == 2 * np.size(wl)
-    sse_total = np.inf
-    for _ in range(iterations):
-        R, Jt, Jd, Jn = _sm.rs_spectra(th, d, n2, n3, wl, jac=("theta", "thickness", "film_ior"), with_p=with_p)
-        r = S - R
-        e = float(np.sum(r * r))
-        dot = lambda x, y: np.einsum("ij,ij->i", x, y)  # noqa: E731
-        a11, a12, a22 = dot(Jt, Jt) + 1e-12, dot(Jt, Jd), dot(Jd, Jd) + 1e-12
-        det = a11 * a22 - a12 * a12
-        c1, c2, en = dot(Jt, Jn), dot(Jd, Jn), dot(Jn, Jn)
-        g1, g2, hn = dot(Jt, r), dot(Jd, r), dot(Jn, r)
-        # A^{-1} c and A^{-1} g
-        ac1, ac2 = (a22 * c1 - a12 * c2) / det, (a11 * c2 - a12 * c1) / det
-        ag1, ag2 = (a22 * g1 - a12 * g2) / det, (a11 * g2 - a12 * g1) / det
-        S_n = float(np.sum(en - (c1 * ac1 + c2 * ac2)))
-        rhs = float(np.sum(hn - (c1 * ag1 + c2 * ag2)))
-        dn = rhs / S_n if S_n > 0 else 0.0
-        dn = float(np.clip(dn, -0.05, 0.05))
-        dt = ag1 - ac1 * dn
-        dd = ag2 - ac2 * dn
-        step = 1.0
-        for _ in range(6):
-            n2_new = float(np.clip(n2 + step * dn, n2_lo, n2_hi))
-            th_new = np.abs(th + step * np.clip(dt, -0.2, 0.2))
-            d_new = np.maximum(d + step * np.clip(dd, -40, 40), 0.0)
-            R2 = _sm.rs_spectra(th_new, d_new, n2_new, n3, wl, with_p=with_p)
-            e2 = float(np.sum((S - R2) ** 2))
-            if e2 < e:
-                break
-            step *= 0.5
-        else:
-            break
-        converged = abs(n2_new - n2) < 1e-6
-        th, d, n2, sse_total = th_new, d_new, n2_new, e2
-        if converged:
-            break
-    return n2, th, d, sse_total
+
+    def split(x):
+        return float(x[0, 0]), x[0, 1::2], x[0, 2::2]
+
+    def normal_equations(x, idx):
+        n2_, th_, d_ = split(x)
+        R, Jt, Jd, Jn = _sm.rs_spectra(th_, d_, n2_, n3, wl, jac=("theta", "thickness", "film_ior"), with_p=with_p)
+        r = R - S
+        dot = lambda a, b: np.einsum("ij,ij->i", a, b)  # noqa: E731
+        H = np.zeros((1, 1 + 2 * N, 1 + 2 * N))
+        t, u = 1 + 2 * np.arange(N), 2 + 2 * np.arange(N)
+        H[0, 0, 0] = np.sum(Jn * Jn)
+        H[0, 0, t] = H[0, t, 0] = dot(Jn, Jt)
+        H[0, 0, u] = H[0, u, 0] = dot(Jn, Jd)
+        H[0, t, t] = dot(Jt, Jt) + 1e-12
+        H[0, u, u] = dot(Jd, Jd) + 1e-12
+        H[0, t, u] = H[0, u, t] = dot(Jt, Jd)
+        g = np.empty((1, 1 + 2 * N))
+        g[0, 0], g[0, t], g[0, u] = np.sum(Jn * r), dot(Jt, r), dot(Jd, r)
+        return H, g, np.array([np.sum(r * r)]), None
+
+    def project(x):
+        x[:, 0] = np.clip(x[:, 0], n2_lo, n2_hi)
+        x[:, 1::2] = np.abs(x[:, 1::2])
+        x[:, 2::2] = np.maximum(x[:, 2::2], 0.0)
+        return x
+
+    x0 = np.empty((1, 1 + 2 * N))
+    x0[0, 0], x0[0, 1::2], x0[0, 2::2] = n2, th, d
+    max_step = np.empty(1 + 2 * N)
+    max_step[0], max_step[1::2], max_step[2::2] = 0.05, 0.2, 40.0
+    fit = levenberg_marquardt(x0, normal_equations, iterations, project=project, max_step=max_step,
+                              floor_rel=0.0, floor_abs=1e-12, solve=lambda A, b: solve_arrow(A, b, 2),
+                              converged=lambda step, H, cost, ok: ok & (np.abs(step[:, 0]) < 1e-6))
+    n2_fit, th_fit, d_fit = split(fit.x)
+    return n2_fit, th_fit.copy(), d_fit.copy(), float(fit.cost[0])
 
 
 def estimate_film_ior(spectra, theta_rad, peak_wl_nm, substrate_ior, wavelengths_nm,
