@@ -2,9 +2,11 @@
 
 Every pixel of an image is its own problem with a few parameters (P = 1 to 4). The caller
 supplies the Gauss-Newton normal equations at trial points; the solver runs all pixels at
-once, each with its own damping, and stops each pixel on its own. Both per-pixel fits of the
-project use it: the polarized-RGB inversion (:mod:`.rgb_invert`) and the spectral fit of
-angle and thickness (:mod:`.spectral_fit`).
+once, each with its own damping, and stops each pixel on its own. It is the project's one
+least-squares solver: the polarized-RGB inversion (:mod:`.rgb_invert`), the spectral fits of
+angle and thickness (:mod:`.spectral_fit`, :mod:`.spectral_stokes`), the joint fit of one film
+index with every pixel's angle and thickness (one problem, its systems solved by
+:func:`solve_arrow`) and the spectrometer fits of ``fit-spectrum`` (:mod:`.spectrum_fit`) use it.
 
 Each iteration evaluates the model once per still-active pixel, at the trial point
 ``x + step`` with ``step = -(H + λ D)⁻¹ g``, ``D = diag(max(H_ii, floor))``; the trial is

@@ -632,7 +632,7 @@ def _clip(problem, theta):
     return theta
 
 
-def _levenberg_marquardt(problem, Y, theta, g, iterations=30, freeze_index=False):
+def _refine_group(problem, Y, theta, g, iterations=30, freeze_index=False):
     """Levenberg-Marquardt (:func:`thinfilm.reconstruction.lm.levenberg_marquardt`) for N
     independent problems with ``g`` response columns; returns ``(theta, cost, plausible)``.
 
@@ -689,7 +689,7 @@ def _refine(problem, Y, theta, g, freeze_index=False, iterations=30):
     plausible = np.empty(theta.shape[0], dtype=bool)
     for gv in np.unique(g):
         sel = np.flatnonzero(g == gv)
-        theta_out[sel], cost[sel], plausible[sel] = _levenberg_marquardt(
+        theta_out[sel], cost[sel], plausible[sel] = _refine_group(
             problem, Y[sel], theta[sel].copy(), int(gv), iterations, freeze_index)
     return theta_out, cost, plausible
 

@@ -192,3 +192,26 @@ def test_bad_arguments_are_refused():
         ObservationModel(rig, Film.single(1.37, None, 1.6), backend="opencl").types
     with pytest.raises(ValueError):
         ObservationModel(rig, Film.single(1.37, None, 1.6)).stokes(np.zeros((2, 3)), np.zeros(3))
+
+
+@pytest.mark.parametrize("angle, n_film, n_sub, k_sub", [(0.0, 1.33, 1.0, 0.0), (35.0, 1.46, 3.9, 0.02),
+                                                         (60.0, 1.38, 1.52, 0.0)])
+def test_the_spectrometer_reading_and_its_derivatives_against_tmm(angle, n_film, n_sub, k_sub):
+    """fit-spectrum's forward model: (R_s + R_p)/2 at one angle, and its AD derivatives by the
+    thickness and by an index offset, against tmm and central differences of tmm."""
+    from thinfilm.core.model import Spectrometer
+
+    lam = np.linspace(420.0, 820.0, 9)
+    d, delta = 1234.5, 0.01
+    film = Film.single(n_film, substrate_ior=n_sub, substrate_k=k_sub)
+    R, J = Spectrometer(film, lam, angle).reflectance([d], [delta], derivatives=True)
+
+    def ref(dd, nn):
+        return np.array([0.5 * sum(tmm_rs_rp(angle, x, dd, nn, n_sub, k_sub)) for x in lam])
+
+    assert np.allclose(R[0], ref(d, n_film + delta), rtol=0, atol=1e-10)
+    h_d, h_n = 1e-3, 1e-6
+    dd = (ref(d + h_d, n_film + delta) - ref(d - h_d, n_film + delta)) / (2 * h_d)
+    dn = (ref(d, n_film + delta + h_n) - ref(d, n_film + delta - h_n)) / (2 * h_n)
+    assert np.allclose(J[0, :, 0], dd, rtol=1e-5, atol=1e-9)
+    assert np.allclose(J[0, :, 1], dn, rtol=1e-5, atol=1e-7)

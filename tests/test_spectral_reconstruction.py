@@ -358,3 +358,22 @@ def test_bad_input_exits_2_with_one_line(rendered, tmp_path, capsys, case):
     assert err.startswith("thinfilm: error:") and "\n" not in err and "Traceback" not in err
     assert BAD_INPUT_MESSAGES[case] in err
     assert not out.exists()
+
+
+def test_joint_film_ior_recovers_the_shared_index_from_tmm_spectra():
+    """One shared film index and every pixel's (θ, d), fitted jointly (lm.levenberg_marquardt
+    with the Schur-complement solve) to s spectra from tmm, from a start 0.04 off in n2."""
+    rng = np.random.default_rng(5)
+    wl = np.linspace(420.0, 720.0, 31)
+    n2, n3 = 1.38, 1.6
+    th = np.radians(rng.uniform(25.0, 60.0, 12))
+    d = rng.uniform(250.0, 600.0, 12)
+    S = np.array([[tmm.coh_tmm("s", [1.0, n2, n3], [np.inf, di, np.inf], ti, x)["R"] for x in wl]
+                  for ti, di in zip(th, d)])
+    n2_0 = n2 + 0.04
+    fit_n2, fit_th, fit_d, sse = spectral_fit.joint_film_ior(S, th + 0.02, d * n2 / n2_0, n2_0, n3, wl,
+                                                             iterations=40)
+    assert abs(fit_n2 - n2) < 1e-4
+    assert np.max(np.abs(fit_d - d)) < 0.1
+    assert np.max(np.abs(fit_th - th)) < 1e-3
+    assert sse < 1e-12
