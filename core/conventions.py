@@ -1,8 +1,9 @@
 """The project's conventions, written once: camera frame, zenith/azimuth, Stokes vectors.
 
-Camera frame (``DESIGN.md``): image x to the right, y up, z towards the camera; row 0 of an
-image is its top. Normals are unit vectors in this frame, ``n_z > 0`` where visible. Zenith
-``θ = arccos(n_z)``, azimuth ``φ = atan2(n_y, n_x)`` in [0, 360), both in degrees in files.
+Camera frame (``docs/design.md``, *Conventions*): image x to the right, y up, z towards the
+camera; row 0 of an image is its top. Normals are unit vectors in this frame, ``n_z > 0`` where
+visible. Zenith ``θ = arccos(n_z)``, azimuth ``φ = atan2(n_y, n_x)`` in [0, 360), both in
+degrees in files.
 
 Polarizer angle α: the angle of the transmission axis from image +x towards image +y. Stokes
 vectors are in the same frame, and the intensity behind the polarizer is (Malus' law)

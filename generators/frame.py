@@ -1,9 +1,9 @@
 """The orthographic view of the capture generator: where the camera looks and its pixels.
 
-Conventions (``DESIGN.md``): orthographic camera looking along -z with image x to the right
-and y up, row 0 at the top; one ray per pixel through its centre, square pixels. The
-generator's object is centred in a square image (meshes: offset by a fraction of a pixel,
-see :func:`frame_for`) and its larger projected extent fills ``rig.fill`` of it.
+Conventions (``docs/design.md``, *Conventions*): orthographic camera looking along -z with
+image x to the right and y up, row 0 at the top; one ray per pixel through its centre, square
+pixels. The generator's object is centred in a square image (meshes: offset by a fraction of a
+pixel, see :func:`frame_for`) and its larger projected extent fills ``rig.fill`` of it.
 
 Examples
 --------

@@ -1,4 +1,4 @@
-"""Camera noise model ``camera`` of the scene spec (``DESIGN.md``, ``[noise]``).
+"""Camera noise model ``camera`` of the scene spec (``docs/design.md``, *Scene spec*, ``[noise]``).
 
 Each image is exposed with a gain g (electrons per unit reflectance): ``exposure = "auto"``
 picks g so that the image's brightest object pixel collects 90 % of the full well (as a

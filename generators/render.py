@@ -133,8 +133,8 @@ def render_stokes_cube(scene, wavelengths_nm, band_fwhm_nm: float, passband: str
     -------
     dict
         ``S0``, ``S1``, ``S2``: (H, W, B) float64 in reflectance units (dome radiance 1),
-        Stokes frame of ``DESIGN.md`` (S1 = I(0°) - I(90°), 0° = image +x); ``mask``: (H, W)
-        bool, pixels whose centre ray hits a surface facing the camera.
+        Stokes frame of ``docs/design.md``, *Conventions* (S1 = I(0°) - I(90°), 0° = image +x);
+        ``mask``: (H, W) bool, pixels whose centre ray hits a surface facing the camera.
     """
     from .ground_truth import cast_ground_truth
 

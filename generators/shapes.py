@@ -1,9 +1,9 @@
 """Shapes of the capture generator: analytic sphere and cylinder, meshes built at run time,
 any mesh file, and groups of separate objects.
 
-Scene units; the camera looks along -z (``DESIGN.md``). Rotations ``rotate_deg`` are x, y, z
-Euler angles in degrees applied in that order (about the shape's own centre, before any
-``offset``).
+Scene units; the camera looks along -z (``docs/design.md``, *Conventions*). Rotations
+``rotate_deg`` are x, y, z Euler angles in degrees applied in that order (about the shape's own
+centre, before any ``offset``).
 
 ``hemisphere``
     Mitsuba's analytic ``sphere`` (only its upper half is visible to the camera and no

@@ -1,6 +1,6 @@
 """Scene specs: load a TOML spec or a preset, apply overrides, validate once, type.
 
-A scene spec (``DESIGN.md``, section *Scene spec*) describes one synthetic capture: the
+A scene spec (``docs/design.md``, *Scene spec*) describes one synthetic capture: the
 shape, the film and its thickness profile, the substrate, the capture rig and the noise
 model. :func:`load_spec` turns a preset name, a TOML file or a dictionary into a
 :class:`SceneSpec`: validated once (:mod:`.spec_schema`), every key present, paths absolute,
@@ -8,8 +8,9 @@ the film as a :class:`thinfilm.core.film.Film`. Its :meth:`SceneSpec.to_toml` is
 dataset's ``scene.toml`` holds; loading that file again gives the same spec, so the same
 dataset.
 
-Keys beyond ``DESIGN.md``
--------------------------
+More keys
+---------
+Keys beyond those of ``docs/design.md``, *Scene spec*:
 ``shape.scale``, ``shape.rotate_deg`` (x, y, z Euler angles applied in that order),
 ``shape.smooth`` (mesh only: smooth shading normals, default true; false gives flat faces),
 ``film.thickness.axis`` (linear: ``"x"`` left→right or ``"y"`` bottom→top),

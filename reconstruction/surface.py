@@ -1,7 +1,7 @@
 """Height maps from normal fields on a mask, and normals from height maps.
 
-Camera frame of ``DESIGN.md``: image x to the right, y up (row 0 is the top row), z towards
-the orthographic camera. A height map ``z(x, y)`` in pixel units has the normal
+Camera frame of ``docs/design.md``, *Conventions*: image x to the right, y up (row 0 is the top
+row), z towards the orthographic camera. A height map ``z(x, y)`` in pixel units has the normal
 ``(-z_x, -z_y, 1) / |…|``, so a unit normal gives the gradient ``z_x = -n_x / n_z``,
 ``z_y = -n_y / n_z``.
 

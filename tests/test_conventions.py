@@ -1,4 +1,4 @@
-"""Stokes fit, DoLP/AoLP and the polarization conventions of DESIGN.md."""
+"""Stokes fit, DoLP/AoLP and the polarization conventions of docs/design.md, *Conventions*."""
 
 import numpy as np
 import pytest
@@ -87,8 +87,8 @@ def test_stokes_from_dataset_layers():
 def test_specular_reflection_peaks_along_the_s_direction():
     """For a specular pixel of normal n seen along v = +z, the transmitted intensity must peak
     at the s-direction, the image angle of n × v (perpendicular to the plane of incidence):
-    φ + 90° in DESIGN.md's frame. The reference direction is computed here from vector
-    geometry; the model's Stokes come from the optics core."""
+    φ + 90° in the frame of docs/design.md, *Conventions*. The reference direction is computed
+    here from vector geometry; the model's Stokes come from the optics core."""
     from thinfilm.core.film import Film
     from thinfilm.reconstruction.rgb_model import FilmCamera
 

@@ -75,7 +75,8 @@ def test_mono_polarized_render_matches_tmm(variant_llvm_ad_mono_polarized, theta
 
 @pytest.mark.parametrize("phi", [0.0, 30.0, 120.0, 200.0, 315.0])
 def test_stokes_frame_peak_at_s_direction(variant_llvm_ad_mono_polarized, phi):
-    """DESIGN.md's frame: behind a polarizer at α the intensity peaks at α = φ + 90°."""
+    """The frame of docs/design.md, *Conventions*: behind a polarizer at α the intensity peaks
+    at α = φ + 90°."""
     mi = variant_llvm_ad_mono_polarized
     scene = _plane_scene(mi, {"type": "thinfilm", "thickness": 300.0, "wavelength": 500.0}, 50.0, phi)
     S0, S1, S2, _ = _stokes(mi, scene)

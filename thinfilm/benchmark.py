@@ -78,7 +78,7 @@ PRESET_KINDS = {
     "pyramid": ("rgb",),
 }
 
-#: Figures the paper reports (``shared/PAPER.md``), keyed by (kind, preset). ``setting``
+#: Figures the paper reports (``docs/paper.md``), keyed by (kind, preset). ``setting``
 #: says what the paper measured them on; ``None`` = not reported.
 PAPER_FIGURES = {
     ("rgb", "cylinder"): {
@@ -648,7 +648,7 @@ def write_report(results: dict) -> str:
             lines.append("")
 
     lines += ["## Paper versus ours", "",
-              "The paper's figures (Kobayashi et al.; `shared/PAPER.md`) beside ours on the "
+              "The paper's figures (Kobayashi et al.; `docs/paper.md`) beside ours on the "
               "matching preset. The paper's RGB figures come from real objects or a "
               "spectrometer sweep, its spectral figures from simulation (and one real sample): "
               "the settings differ, so read the columns side by side, not as a pass mark.", "",

@@ -1,8 +1,8 @@
 """The ``thinfilm`` command line.
 
-Each subcommand's arguments are declared here (the contract of ``DESIGN.md``); the work
-is done by a ``cli_main(args)`` function in the module that owns it, imported only when
-that subcommand runs so that ``thinfilm --help`` stays instant.
+Each subcommand's arguments are declared here (the contract of ``docs/design.md``,
+*CLI contract*); the work is done by a ``cli_main(args)`` function in the module that owns
+it, imported only when that subcommand runs so that ``thinfilm --help`` stays instant.
 
 Bad input raises :class:`thinfilm.core.errors.UserError`; it is printed as one line on stderr
 and the exit code is 2. Warnings (:class:`thinfilm.core.errors.ThinfilmWarning`) are printed

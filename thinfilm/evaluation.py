@@ -1,6 +1,6 @@
 """Evaluation: re-render an estimate through the ``thinfilm`` BSDF and score it.
 
-``thinfilm evaluate DATASET ESTIMATE --out DIR`` (``DESIGN.md``, issue 6):
+``thinfilm evaluate DATASET ESTIMATE --out DIR`` (``docs/design.md``, *Evaluation output*):
 
 1. The estimated normals, thickness and film index are re-rendered in Mitsuba with the
    dataset's rig (orthographic camera, uniform dome, polarizer angles, bands and passband,
@@ -25,9 +25,9 @@
    through the fitted camera→XYZ matrix; spectral RMSE (paper Eq. 32)
    ``sqrt(Σ_λ (R_o − R_e)² / N)`` per pixel in reflectance units (0.02 = 2 %).
 
-Outputs: ``metrics.json`` (exactly the keys of ``DESIGN.md``), ``evaluation.json``
-(definitions, coverage, colour path), ``rerendered.exr`` (re-rendered captures),
-``errors.exr`` (error maps) and PNG figures (:mod:`thinfilm.figures`).
+Outputs: ``metrics.json`` (exactly the keys of ``docs/design.md``, *Evaluation output*),
+``evaluation.json`` (definitions, coverage, colour path), ``rerendered.exr`` (re-rendered
+captures), ``errors.exr`` (error maps) and PNG figures (:mod:`thinfilm.figures`).
 """
 
 from __future__ import annotations
@@ -187,7 +187,8 @@ def render_normal_map(normals, thickness_nm, valid, wavelengths_nm, film, dome_h
     Returns
     -------
     dict ``"S0"``, ``"S1"``, ``"S2"`` → (H, W, B) float64 in reflectance units, Stokes in
-    the ``DESIGN.md`` frame (``S1 = I(0°) − I(90°)``, 0° = image +x); zero off ``valid``.
+    the frame of ``docs/design.md``, *Conventions* (``S1 = I(0°) − I(90°)``, 0° = image +x);
+    zero off ``valid``.
     """
     from thinfilm.generators.render import render_stokes_cube, require_render_variant
     from thinfilm.generators.scene import normal_map_scene
