@@ -21,7 +21,7 @@
    normal angle, zenith, thickness; ΔE*ab (CIE 1976, paper Eq. 31) and ΔE00 between the
    captured and re-rendered s-polarized appearance, in CIELAB from spectra
    (:mod:`thinfilm.color_difference`), or, when the dataset holds no spectra, from the
-   s-polarized camera RGB (Stokes fit of :mod:`thinfilm.reconstruction.polarization`)
+   s-polarized camera RGB (Stokes fit of :func:`thinfilm.core.conventions.fit_stokes`)
    through the fitted camera→XYZ matrix; spectral RMSE (paper Eq. 32)
    ``sqrt(Σ_λ (R_o − R_e)² / N)`` per pixel in reflectance units (0.02 = 2 %).
 
