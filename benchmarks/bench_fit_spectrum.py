@@ -70,17 +70,24 @@ def naive_fit(lam, y, model, d_range=(1.0, 10000.0), grid_points=40):
     """The baseline: least_squares on (d, B line, G cubic) from the best coarse-grid start."""
     from scipy.optimize import least_squares
 
+    from thinfilm.bsdf import optics
+
     x = 1.0 / lam
     t = 2.0 * (x - x.min()) / np.ptp(x) - 1.0
     V = np.polynomial.legendre.legvander(t, 3)
+    n2, k2, n3, k3 = model.indices(lam)
+
+    def reflectance(d):  # normal incidence, the optics core in NumPy
+        R_s, R_p = optics.reflectances(1.0, lam, d, n2, n3, k3, model.ext_ior, k2)
+        return 0.5 * (R_s + R_p)
 
     def model_y(p):
         B = p[1] + p[2] * t
         G = V @ p[3:]
-        return B + G * model.reflectance(lam, p[0])
+        return B + G * reflectance(p[0])
 
     grid = np.linspace(d_range[0], d_range[1], grid_points)
-    R = model.reflectance(lam[None, :], grid[:, None])
+    R = reflectance(grid[:, None])
     g0 = (y.mean() - y.min()) / np.maximum(R.mean(axis=1), 1e-12)
     costs = np.sum((y.min() + g0[:, None] * R - y) ** 2, axis=1)
     k = int(np.argmin(costs))

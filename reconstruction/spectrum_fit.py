@@ -95,7 +95,7 @@ Examples
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -172,6 +172,7 @@ class FilmModel:
     substrate_k: float | None = None
     angle_deg: float = 0.0
     ext_ior: float = 1.0
+    _spectrometers: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def __post_init__(self):
         object.__setattr__(self, "film_ior", as_dispersion(self.film_ior))
@@ -215,8 +216,21 @@ class FilmModel:
                                             for v in (wavelengths_nm, thickness_nm, film_ior_offset)))
         grid, at = np.unique(lam, return_inverse=True)
         pairs, row = np.unique(np.stack([d.ravel(), off.ravel()], axis=1), axis=0, return_inverse=True)
-        R = Spectrometer(self.film(), grid, self.angle_deg).reflectance(pairs[:, 0], pairs[:, 1])
+        R = self.spectrometer(grid).reflectance(pairs[:, 0], pairs[:, 1])
         return R[row.ravel(), at.ravel()].reshape(lam.shape)
+
+    def __getstate__(self):  # the kept models hold Dr.Jit arrays: not pickled
+        return {**self.__dict__, "_spectrometers": {}}
+
+    def spectrometer(self, wavelengths_nm) -> Spectrometer:
+        """The observation model of this measurement at the given wavelengths (kept for reuse)."""
+        lam = np.asarray(wavelengths_nm, dtype=np.float64).ravel()
+        key = lam.tobytes()
+        if key not in self._spectrometers:
+            if len(self._spectrometers) >= 8:
+                self._spectrometers.clear()
+            self._spectrometers[key] = Spectrometer(self.film(), lam, self.angle_deg)
+        return self._spectrometers[key]
 
     def phase_index(self, wavelengths_nm, film_ior_offset=0.0):
         """``n2 cos θ2 = sqrt(n2² − n1² sin² θ1)``: the round-trip phase is ``4π d · this / λ``."""
@@ -343,7 +357,7 @@ class _Problem:
         period = lam * lam / (2.0 * model.phase_index(lam) * self.d_hi)
         self.m = int(np.clip(np.ceil(12.0 * np.max(width / period)), 1, _MAX_SUBSAMPLES))
         self.lam_sub = _pixels(lam, self.m)[0].reshape(-1)
-        self.spectrometer = Spectrometer(model.film(), self.lam_sub, model.angle_deg)
+        self.spectrometer = model.spectrometer(self.lam_sub)
         self.lam_ref = 0.5 * (lam[0] + lam[-1])
         self.n_ref = float(model.indices(np.array([self.lam_ref]))[0][0])
 
