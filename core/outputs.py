@@ -120,6 +120,8 @@ __all__ = [
     "output_lock",
     "read_marker",
     "clean_stale_temporaries",
+    "host_tag",
+    "exchange_paths",
 ]
 
 #: The file that marks a folder as an output of this tool.
@@ -132,7 +134,9 @@ _TEMP_RE = re.compile(r"^\.(?P<name>.+)\.(?P<kind>tmp|old|stage)-(?P<pid>\d+)@(?
 
 # -- small helpers ------------------------------------------------------------------------------
 
-def _host() -> str:
+def host_tag() -> str:
+    """This machine's name as it appears in the names of temporaries (``...-PID@HOST-...``):
+    letters, digits and '-', at most 32 characters."""
     host = re.sub(r"[^A-Za-z0-9-]", "-", socket.gethostname() or "")[:32]
     return host or "host"
 
@@ -140,7 +144,7 @@ def _host() -> str:
 def _temp_name(name: str, kind: str = "tmp", ext: str = "") -> str:
     """``.NAME.tmp-PID@HOST-XXXXXXXX[.ext]``: the pattern :func:`clean_stale_temporaries` knows."""
     rand = secrets.token_hex(4)
-    return f".{name}.{kind}-{os.getpid()}@{_host()}-{rand}{ext}"
+    return f".{name}.{kind}-{os.getpid()}@{host_tag()}-{rand}{ext}"
 
 
 def _umask() -> int:
@@ -195,7 +199,7 @@ def _tree(root: Path) -> set:
 
 def _is_stale_temporary(path: Path) -> bool:
     m = _TEMP_RE.match(path.name)
-    return bool(m) and m["host"] == _host() and not _pid_alive(int(m["pid"]))
+    return bool(m) and m["host"] == host_tag() and not _pid_alive(int(m["pid"]))
 
 
 def _in_stale_temporary(root: Path, rel: str) -> bool:
@@ -283,7 +287,7 @@ def _about_output(e: OSError, *places) -> bool:
     return False
 
 
-def _exchange(a: Path, b: Path) -> bool:
+def exchange_paths(a: Path, b: Path) -> bool:
     """Swap two paths in one step (Linux ``renameat2(RENAME_EXCHANGE)``); False where the
     system or file system cannot."""
     if not sys.platform.startswith("linux"):
@@ -319,7 +323,7 @@ def _swap_into_place(new: Path, target: Path) -> None:
                 return
             except OSError:
                 pass
-        if _exchange(new, target):
+        if exchange_paths(new, target):
             _rmtree(new)  # it now holds the old output
             return
         old = target.with_name(_temp_name(target.name, "old"))
@@ -506,7 +510,7 @@ def clean_stale_temporaries(parent) -> list:
         return done
     for p in children:
         m = _TEMP_RE.match(p.name)
-        if not m or m["host"] != _host() or _pid_alive(int(m["pid"])):
+        if not m or m["host"] != host_tag() or _pid_alive(int(m["pid"])):
             continue
         if p.is_symlink() or not (p.is_dir() or p.is_file()):
             continue

@@ -45,19 +45,11 @@ __all__ = [
     "render_seeds",
     "sample_blocks",
     "ROUGH_SAMPLER",
-    "BSDF_SAMPLING_INTEGRATOR",
     "MAX_LANES",
 ]
 
 #: sampler of the many-sample path: blocks of a power of 4 samples (:func:`sample_blocks`)
 ROUGH_SAMPLER = "ldsampler"
-#: nested integrator of the many-sample path for objects that cannot reflect light onto
-#: themselves (convex ones): one BSDF sample per camera ray, traced to the dome, no light
-#: sampling. For them it gives what the path tracer gives (light sampling adds nothing under
-#: a dome that fills the sky), about as noisy, in about half the time (40-50 % measured at
-#: 64 samples per pixel).
-BSDF_SAMPLING_INTEGRATOR = {"type": "direct", "emitter_samples": 0, "bsdf_samples": 1,
-                            "hide_emitters": True}
 #: samples traced per kernel launch (rows of the image are rendered in groups of at most this)
 MAX_LANES = 1 << 21
 
@@ -126,8 +118,9 @@ def render_stokes_cube(scene, wavelengths_nm, band_fwhm_nm: float, passband: str
     integrator : dict, optional
         Nested sampling integrator of the many-sample path (not the ``stokes`` wrapper);
         default Mitsuba's ``path`` with ``max_depth`` 6 and hidden emitters, which suits any
-        scene; :data:`BSDF_SAMPLING_INTEGRATOR` gives the same for convex objects in about
-        half the time.
+        scene; :data:`thinfilm.generators.scene.BSDF_SAMPLING_INTEGRATOR` gives the same for
+        convex objects in about half the time (:func:`thinfilm.generators.scene.rough_integrator`
+        picks one for a scene spec).
 
     Returns
     -------

@@ -18,6 +18,7 @@ from .thickness import film_bsdf, thickness_map
 __all__ = [
     "ENVMAP_ROWS",
     "CONVEX_SHAPES",
+    "BSDF_SAMPLING_INTEGRATOR",
     "register_plugins",
     "dome_dict",
     "build_scene_dict",
@@ -30,6 +31,13 @@ ENVMAP_ROWS = 2048  # latitude rows of the dome-with-hole environment map (0.088
 #: shape kinds that are (the outside of) a convex body: no light reflected by them reaches
 #: them again, so one bounce to the dome is the whole light path
 CONVEX_SHAPES = frozenset({"hemisphere", "cylinder", "pyramid"})
+#: nested integrator of the many-sample path of :func:`.render.render_stokes_cube` for objects
+#: that cannot reflect light onto themselves (convex ones): one BSDF sample per camera ray,
+#: traced to the dome, no light sampling. For them it gives what the path tracer gives (light
+#: sampling adds nothing under a dome that fills the sky), about as noisy, in about half the
+#: time (40-50 % measured at 64 samples per pixel).
+BSDF_SAMPLING_INTEGRATOR = {"type": "direct", "emitter_samples": 0, "bsdf_samples": 1,
+                            "hide_emitters": True}
 
 
 def register_plugins() -> None:
@@ -164,13 +172,11 @@ def rough_integrator(spec) -> dict:
     many samples per pixel (:func:`thinfilm.generators.render.render_stokes_cube`).
 
     A shape of :data:`CONVEX_SHAPES` gets
-    :data:`thinfilm.generators.render.BSDF_SAMPLING_INTEGRATOR` (one BSDF sample traced to
+    :data:`BSDF_SAMPLING_INTEGRATOR` (one BSDF sample traced to
     the dome: all there is for it, in about half the path tracer's time); any other gets the
     path tracer of the scene, ``rig.max_depth`` included, so that light reflected between its
     parts is kept.
     """
-    from .render import BSDF_SAMPLING_INTEGRATOR
-
     if spec.shape.kind in CONVEX_SHAPES:
         return dict(BSDF_SAMPLING_INTEGRATOR)
     return _path_integrator(spec.rig.max_depth)

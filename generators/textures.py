@@ -84,7 +84,7 @@ class _ImageSpaceMixin:
 
 def texture_class():
     """The plugin class for the current Mitsuba variant."""
-    from thinfilm.bsdf.plugin import variant_class
+    from thinfilm.bsdf.bsdf_common import variant_class
 
     return variant_class(_ImageSpaceMixin, "Texture", "ImageSpaceTexture")
 

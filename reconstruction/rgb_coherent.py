@@ -34,7 +34,7 @@ from .azimuth import resolve_azimuth_global
 from .masks import masked_median
 from .rgb_capture import RGBCapture
 
-__all__ = ["reconstruct_coherent"]
+__all__ = ["reconstruct_coherent", "settle_orders"]
 
 
 def _normal_information(info, n_xy):
@@ -52,7 +52,7 @@ def _normal_information(info, n_xy):
 
 #: fraction of pixels whose order of interference the data leave open above which each pixel
 #: takes the order its neighbourhood's pooled evidence prefers, whole patches then move by an
-#: order where their edges and pixels call for it (:func:`_settle_orders`), and the thickness is
+#: order where their edges and pixels call for it (:func:`settle_orders`), and the thickness is
 #: reported as less reliable (a warning). On the 320 random scenes of sweep_random_scenes.py
 #: seeds 1-20: from 0.80 with both, 318 pass the thickness bar (two tori under illuminant A
 #: miss); from 0.85, or from 0.80 with the pooled order alone, 315
@@ -97,8 +97,8 @@ def _choose_basins(fit, cand_pix, cand, mask, sigma, thickness_sigma_nm, basin_n
     return out, float(np.mean(open_order)) if n else 0.0, (values, costs)
 
 
-def _settle_orders(thickness, values, costs, mask, basin_nm=40.0, order_nm=(100.0, 300.0), cap=2.0,
-                   sigma_nm=10.0, truncation=8.0, margin=5.0, rounds=40):
+def settle_orders(thickness, values, costs, mask, basin_nm=40.0, order_nm=(100.0, 300.0), cap=2.0,
+                  sigma_nm=10.0, truncation=8.0, margin=5.0, rounds=40):
     """Whole patches of the thickness moved by one order of interference where that smooths
     their edges and, with their pixels' evidence, clearly lowers the energy.
 
@@ -231,7 +231,7 @@ def reconstruct_coherent(capture: RGBCapture, progress: bool = False, rounds: in
         # pooled evidence prefers, patches of a wrong order move as a whole, and every pixel is
         # fitted again from there
         d_pool = pooled_thickness(table, I_obs, angles, fit.zenith_deg, mask, sigma0)
-        d_pool = _settle_orders(d_pool, *basins, mask)
+        d_pool = settle_orders(d_pool, *basins, mask)
         fit = refine_pixels(table, I_obs, angles, fit.zenith_deg, d_pool, fit.azimuth_deg, iterations=20)
         import warnings
 

@@ -70,8 +70,7 @@ def test_spp_rule():
 
 
 def test_rough_integrator_is_one_bounce_only_for_convex_shapes(tmp_path):
-    from thinfilm.generators.render import BSDF_SAMPLING_INTEGRATOR
-    from thinfilm.generators.scene import rough_integrator
+    from thinfilm.generators.scene import BSDF_SAMPLING_INTEGRATOR, rough_integrator
     from thinfilm.generators.spec import load_spec
 
     for preset in ("hemisphere", "cylinder", "pyramid"):
@@ -96,7 +95,8 @@ def test_many_sample_path_of_a_smooth_film_is_mitsubas_render(render_variant, pr
     summed per pixel) must give ``mi.render``'s Stokes images bit for bit, with either
     integrator."""
     mi = render_variant
-    from thinfilm.generators.render import BSDF_SAMPLING_INTEGRATOR, render_stokes_cube
+    from thinfilm.generators.render import render_stokes_cube
+    from thinfilm.generators.scene import BSDF_SAMPLING_INTEGRATOR
     from thinfilm.generators.scene import build_scene_dict
 
     scene = mi.load_dict(build_scene_dict(_spec(preset, alpha=0.0, resolution=24, extra=extra))[0])

@@ -115,7 +115,7 @@ def _full_disk_render(monkeypatch, c):
     def full(mi, bitmap, path, file_format):
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
 
-    monkeypatch.setattr(render_module, "_write_bitmap", full)
+    monkeypatch.setattr(render_module, "write_bitmap", full)
 
 
 def gen(*extra, out="out"):

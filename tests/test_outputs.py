@@ -96,7 +96,7 @@ def test_permissions_follow_the_umask(tmp_path):
 def test_swap_without_renameat2_falls_back_to_two_renames(tmp_path, monkeypatch):
     with atomic_output_dir(tmp_path / "out", command="x") as tmp:
         _write(tmp, {"f": "1"})
-    monkeypatch.setattr(outputs, "_exchange", lambda a, b: False)
+    monkeypatch.setattr(outputs, "exchange_paths", lambda a, b: False)
     with atomic_output_dir(tmp_path / "out", command="x") as tmp:
         _write(tmp, {"f": "2"})
     assert (tmp_path / "out" / "f").read_text() == "2" and _names(tmp_path) == ["out"]
@@ -115,7 +115,7 @@ def test_the_lock_admits_one_writer_and_is_removed_after(tmp_path):
 
 
 def test_stale_temporaries_only_ours_only_dead(tmp_path):
-    host, dead = outputs._host(), _dead_pid()
+    host, dead = outputs.host_tag(), _dead_pid()
     stale = tmp_path / f".out.tmp-{dead}@{host}-abcd1234"
     alive = tmp_path / f".out.tmp-{os.getpid()}@{host}-abcd1234"
     other_host = tmp_path / f".out.tmp-{dead}@elsewhere-abcd1234"
@@ -130,7 +130,7 @@ def test_stale_temporaries_only_ours_only_dead(tmp_path):
 
 
 def test_an_old_output_moved_aside_by_a_killed_swap_is_moved_back(tmp_path):
-    old = tmp_path / f".out.old-{_dead_pid()}@{outputs._host()}-abcd1234"
+    old = tmp_path / f".out.old-{_dead_pid()}@{outputs.host_tag()}-abcd1234"
     _write(old, {"meta.json": "{}"})
     clean_stale_temporaries(tmp_path)
     assert _names(tmp_path) == ["out"] and (tmp_path / "out" / "meta.json").is_file()

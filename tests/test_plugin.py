@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 import tmm  # noqa: E402
+from _plugin_scenes import orthographic_sensor, plane_scene, random_interactions, stokes_images
 
 
 def _tmm_R(pol, theta_deg, lam, d, n2, n3, k3=0.0):
@@ -12,59 +13,20 @@ def _tmm_R(pol, theta_deg, lam, d, n2, n3, k3=0.0):
     return tmm.coh_tmm(pol, [1.0, n2, complex(n3, k3)], [np.inf, d, np.inf], np.radians(theta_deg), lam)["R"]
 
 
-def _normal(theta_deg, phi_deg):
-    t, p = np.radians(theta_deg), np.radians(phi_deg)
-    return np.array([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)])
-
-
-def _sensor(mi, res, spp=1, stratified=True, seed=0):
-    sampler = ({"type": "stratified", "sample_count": spp, "jitter": False, "seed": seed} if stratified
-               else {"type": "independent", "sample_count": spp, "seed": seed})
-    return {
-        "type": "orthographic",
-        "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 5], target=[0, 0, 0], up=[0, 1, 0]),
-        "film": {"type": "hdrfilm", "width": res, "height": res, "rfilter": {"type": "box"},
-                 "pixel_format": "rgb"},
-        "sampler": sampler,
-    }
-
-
-def _plane_scene(mi, bsdf, theta_deg, phi_deg, res=4):
-    """A plane whose normal has zenith θ and azimuth φ in the camera frame, under a uniform dome."""
-    n = _normal(theta_deg, phi_deg)
-    up = [0, 1, 0] if abs(n[1]) < 0.9 else [1, 0, 0]
-    to_world = mi.ScalarTransform4f().look_at(origin=[0, 0, 0], target=list(n), up=up)
-    return mi.load_dict({
-        "type": "scene",
-        "integrator": {"type": "stokes", "nested": {"type": "path", "max_depth": 2, "hide_emitters": True}},
-        "sensor": _sensor(mi, res),
-        "emitter": {"type": "constant", "radiance": {"type": "uniform", "value": 1.0}},
-        "plane": {"type": "rectangle", "to_world": to_world @ mi.ScalarTransform4f().scale(20.0), "bsdf": bsdf},
-    })
-
-
-def _stokes(mi, scene):
-    """S0, S1, S2, S3 images (first colour channel) of a stokes-integrator render."""
-    img = np.array(mi.render(scene), dtype=np.float64)
-    # Channels: [Y or R,G,B] then S0.RGB, S1.RGB, S2.RGB, S3.RGB.
-    base = img.shape[-1] - 12
-    return [img[..., base + 3 * i] for i in range(4)]
-
-
 # --- rendered against tmm ----------------------------------------------------------------
 
 
 @pytest.mark.parametrize("theta", [15.0, 45.0, 70.0])
 def test_mono_polarized_render_matches_tmm(variant_llvm_ad_mono_polarized, theta):
     mi = variant_llvm_ad_mono_polarized
-    scene = _plane_scene(mi, {"type": "thinfilm", "film_ior": 1.37, "substrate_ior": 1.6}, theta, 0.0)
+    scene = plane_scene(mi, {"type": "thinfilm", "film_ior": 1.37, "substrate_ior": 1.6}, theta, 0.0)
     params = mi.traverse(scene)
     for lam in (420.0, 550.0, 690.0):
         for d in (0.0, 250.0, 630.0, 1000.0):
             params["plane.bsdf.wavelength"] = lam
             params["plane.bsdf.thickness"] = d
             params.update()
-            S0, S1, S2, S3 = _stokes(mi, scene)
+            S0, S1, S2, S3 = stokes_images(mi, scene)
             Rs, Rp = _tmm_R("s", theta, lam, d, 1.37, 1.6), _tmm_R("p", theta, lam, d, 1.37, 1.6)
             # φ = 0: the s-direction is image y, so S1 = I(0°) − I(90°) = −(Rs − Rp)/2.
             np.testing.assert_allclose(S0, 0.5 * (Rs + Rp), atol=1e-4, rtol=0)
@@ -78,8 +40,8 @@ def test_stokes_frame_peak_at_s_direction(variant_llvm_ad_mono_polarized, phi):
     """The frame of docs/design.md, *Conventions*: behind a polarizer at α the intensity peaks
     at α = φ + 90°."""
     mi = variant_llvm_ad_mono_polarized
-    scene = _plane_scene(mi, {"type": "thinfilm", "thickness": 300.0, "wavelength": 500.0}, 50.0, phi)
-    S0, S1, S2, _ = _stokes(mi, scene)
+    scene = plane_scene(mi, {"type": "thinfilm", "thickness": 300.0, "wavelength": 500.0}, 50.0, phi)
+    S0, S1, S2, _ = stokes_images(mi, scene)
     alpha = np.radians(np.arange(0.0, 180.0, 0.25))
     intensity = 0.5 * (S0[1, 1] + S1[1, 1] * np.cos(2 * alpha) + S2[1, 1] * np.sin(2 * alpha))
     peak = np.degrees(alpha[np.argmax(intensity)])
@@ -92,7 +54,7 @@ def test_thickness_texture_varies_over_surface(variant_llvm_ad_mono_polarized):
     tex = mi.Bitmap(np.array([[200.0, 600.0]], dtype=np.float32))
     bsdf = {"type": "thinfilm", "wavelength": 520.0,
             "thickness": {"type": "bitmap", "bitmap": tex, "raw": True, "filter_type": "nearest"}}
-    S0 = _stokes(mi, _plane_scene(mi, bsdf, 30.0, 0.0, res=8))[0]
+    S0 = stokes_images(mi, plane_scene(mi, bsdf, 30.0, 0.0, res=8))[0]
     expected = {d: 0.5 * (_tmm_R("s", 30.0, 520.0, d, 1.37, 1.6) + _tmm_R("p", 30.0, 520.0, d, 1.37, 1.6))
                 for d in (200.0, 600.0)}
     left, right = S0[:, :2], S0[:, -2:]
@@ -104,32 +66,6 @@ def test_thickness_texture_varies_over_surface(variant_llvm_ad_mono_polarized):
 # --- against Mitsuba's conductor -----------------------------------------------------------
 
 
-def _random_interactions(mi, n, seed):
-    import drjit as dr
-
-    rng = np.random.default_rng(seed)
-    cos_t = rng.uniform(0.02, 1.0, n)
-    phi = rng.uniform(0, 2 * np.pi, n)
-    sin_t = np.sqrt(1 - cos_t**2)
-    si = dr.zeros(mi.SurfaceInteraction3f, n) if mi.variant().startswith("llvm") else dr.zeros(mi.SurfaceInteraction3f)
-    if mi.variant().startswith("llvm"):
-        si.wi = mi.Vector3f(sin_t * np.cos(phi), sin_t * np.sin(phi), cos_t)
-        si.sh_frame = mi.Frame3f(mi.Vector3f(0, 0, 1))
-        si.n = mi.Vector3f(0, 0, 1)
-        si.wavelengths = mi.UnpolarizedSpectrum(*[mi.Float(rng.uniform(380, 780, n)) for _ in range(4)]) \
-            if mi.is_spectral else si.wavelengths
-        return [si]
-    out = []
-    for i in range(n):
-        s = dr.zeros(mi.SurfaceInteraction3f)
-        s.wi = mi.Vector3f(sin_t[i] * np.cos(phi[i]), sin_t[i] * np.sin(phi[i]), cos_t[i])
-        s.sh_frame = mi.Frame3f(mi.Vector3f(0, 0, 1))
-        s.n = mi.Vector3f(0, 0, 1)
-        s.wavelengths = mi.UnpolarizedSpectrum(*rng.uniform(380, 780, 4))
-        out.append(s)
-    return out
-
-
 @pytest.mark.parametrize("substrate", [(1.6, 0.0), (0.27, 3.4), (1.2, 7.0)])
 @pytest.mark.parametrize("mode", ["Radiance", "Importance"])
 def test_thickness_zero_mueller_equals_conductor(polarized_variant, substrate, mode):
@@ -138,7 +74,7 @@ def test_thickness_zero_mueller_equals_conductor(polarized_variant, substrate, m
     ours = mi.load_dict({"type": "thinfilm", "thickness": 0.0, "substrate_ior": n3, "substrate_k": k3})
     ref = mi.load_dict({"type": "conductor", "eta": n3, "k": k3})
     ctx = mi.BSDFContext(getattr(mi.TransportMode, mode))
-    for si in _random_interactions(mi, 64, seed=3):
+    for si in random_interactions(mi, 64, seed=3):
         bs_o, v_o = ours.sample(ctx, si, 0.5, mi.Point2f(0.5, 0.5))
         bs_r, v_r = ref.sample(ctx, si, 0.5, mi.Point2f(0.5, 0.5))
         np.testing.assert_allclose(np.array(bs_o.wo), np.array(bs_r.wo), atol=1e-7)
@@ -159,7 +95,7 @@ def test_thickness_zero_render_equals_conductor(variant_llvm_ad_spectral_polariz
         scene = mi.load_dict({
             "type": "scene",
             "integrator": {"type": "stokes", "nested": {"type": "path", "max_depth": 3, "hide_emitters": True}},
-            "sensor": _sensor(mi, 24, spp=4, stratified=False, seed=7),
+            "sensor": orthographic_sensor(mi, 24, spp=4, stratified=False, seed=7),
             "emitter": {"type": "constant"},
             "ball": {"type": "sphere", "radius": 0.8, "bsdf": bsdf},
             "ball2": {"type": "sphere", "radius": 0.4, "center": [0.9, 0.9, -0.5], "bsdf": bsdf},
@@ -180,7 +116,7 @@ def test_unpolarized_value_is_mean_reflectance(unpolarized_variant):
     bsdf = mi.load_dict({"type": "thinfilm", "thickness": 480.0, "film_ior": 1.37, "substrate_ior": 1.6,
                          "wavelength": 610.0})
     ctx = mi.BSDFContext()
-    for si in _random_interactions(mi, 16, seed=5):
+    for si in random_interactions(mi, 16, seed=5):
         _, value = bsdf.sample(ctx, si, 0.5, mi.Point2f(0.5, 0.5))
         cos_t = np.atleast_1d(np.array(si.wi.z if mi.variant().startswith("llvm") else [si.wi.z]))
         vals = np.atleast_2d(np.array(value))
@@ -201,7 +137,7 @@ def test_named_film_material_uses_its_dispersion(variant_llvm_ad_spectral_polari
     from thinfilm.bsdf import named_material
 
     bsdf = mi.load_dict({"type": "thinfilm", "thickness": 350.0, "film_ior": "MgF2", "substrate_ior": 1.6})
-    si = _random_interactions(mi, 32, seed=9)[0]
+    si = random_interactions(mi, 32, seed=9)[0]
     _, value = bsdf.sample(mi.BSDFContext(), si, 0.5, mi.Point2f(0.5, 0.5))
     m00 = np.array(value[0, 0])
     lams = np.array(si.wavelengths)
@@ -222,7 +158,7 @@ def test_wavelength_sweep_reuses_compiled_kernel(variant_llvm_ad_mono_polarized)
     mi = variant_llvm_ad_mono_polarized
     import drjit as dr
 
-    scene = _plane_scene(mi, {"type": "thinfilm"}, 40.0, 10.0, res=16)
+    scene = plane_scene(mi, {"type": "thinfilm"}, 40.0, 10.0, res=16)
     params = mi.traverse(scene)
     for key in ("plane.bsdf.thickness", "plane.bsdf.film_ior", "plane.bsdf.wavelength"):
         assert key in params
@@ -233,7 +169,7 @@ def test_wavelength_sweep_reuses_compiled_kernel(variant_llvm_ad_mono_polarized)
         for i, lam in enumerate([450.0, 500.0, 550.0, 600.0, 650.0]):
             params["plane.bsdf.wavelength"] = lam
             params.update()
-            results.append(_stokes(mi, scene)[0][8, 8])
+            results.append(stokes_images(mi, scene)[0][8, 8])
             history = [k for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT]
             if i >= 2:  # after a warm-up band, no band compiles a new kernel
                 assert history and all(k["cache_hit"] for k in history)
@@ -258,7 +194,7 @@ def test_bad_parameters_raise_one_clear_error(variant_llvm_ad_mono_polarized, ba
 
 def test_bad_parameter_update_is_refused(variant_llvm_ad_mono_polarized):
     mi = variant_llvm_ad_mono_polarized
-    scene = _plane_scene(mi, {"type": "thinfilm"}, 30.0, 0.0)
+    scene = plane_scene(mi, {"type": "thinfilm"}, 30.0, 0.0)
     params = mi.traverse(scene)
     params["plane.bsdf.thickness"] = -1.0
     with pytest.raises(ValueError, match="'thickness' must be >= 0"):
@@ -279,7 +215,7 @@ def test_spectrum_film_index(variant_llvm_ad_spectral_polarized):
     mi = variant_llvm_ad_spectral_polarized
     bsdf = mi.load_dict({"type": "thinfilm", "thickness": 500.0, "substrate_ior": 1.6,
                          "film_ior": {"type": "spectrum", "value": [(360.0, 1.42), (830.0, 1.34)]}})
-    si = _random_interactions(mi, 16, seed=2)[0]
+    si = random_interactions(mi, 16, seed=2)[0]
     _, value = bsdf.sample(mi.BSDFContext(), si, 0.5, mi.Point2f(0.5, 0.5))
     m00, lams, cos_t = np.array(value[0, 0]), np.array(si.wavelengths), np.array(si.wi.z)
     for k in range(cos_t.size):
@@ -298,7 +234,7 @@ def test_thickness_gradient_matches_finite_differences(variant_llvm_ad_mono_pola
 
     bsdf = mi.load_dict({"type": "thinfilm", "thickness": 420.0, "wavelength": 530.0})
     params = mi.traverse(bsdf)
-    si = _random_interactions(mi, 8, seed=4)[0]
+    si = random_interactions(mi, 8, seed=4)[0]
     ctx = mi.BSDFContext()
 
     def m00(thickness):
@@ -321,9 +257,9 @@ def test_thickness_gradient_matches_finite_differences(variant_llvm_ad_mono_pola
 def test_exterior_index_in_plugin_matches_tmm(variant_llvm_ad_mono_polarized):
     mi = variant_llvm_ad_mono_polarized
     theta = 35.0
-    scene = _plane_scene(mi, {"type": "thinfilm", "thickness": 300.0, "film_ior": 1.45,
+    scene = plane_scene(mi, {"type": "thinfilm", "thickness": 300.0, "film_ior": 1.45,
                               "substrate_ior": 1.7, "ext_ior": 1.33, "wavelength": 600.0}, theta, 0.0)
-    S0 = _stokes(mi, scene)[0]
+    S0 = stokes_images(mi, scene)[0]
     args = ([1.33, 1.45, 1.7], [np.inf, 300.0, np.inf], np.radians(theta), 600.0)
     ref = 0.5 * (tmm.coh_tmm("s", *args)["R"] + tmm.coh_tmm("p", *args)["R"])
     np.testing.assert_allclose(S0, ref, atol=1e-4, rtol=0)

@@ -515,7 +515,7 @@ def test_settle_orders_moves_a_patch_its_pixels_and_edges_agree_on_and_nothing_o
     the right one fits better by 0.15 noise units on average, with a spread of 1.3 and heavy
     tails (what a flat face under weak fringes gives). A ring of the wrong order moves back
     as a whole; the whole object, whose only evidence is noise around zero, stays."""
-    from thinfilm.reconstruction.rgb_coherent import _settle_orders
+    from thinfilm.reconstruction.rgb_coherent import settle_orders
 
     rng = np.random.default_rng(4)
     H = W = 40
@@ -532,11 +532,11 @@ def test_settle_orders_moves_a_patch_its_pixels_and_edges_agree_on_and_nothing_o
     r = np.hypot(yy - 20, xx - 20)[mask]
     ring = (r > 8) & (r < 15)
     start = np.where(ring, truth - 190.0, truth)
-    out = _settle_orders(start, values, costs(0.15), mask)
+    out = settle_orders(start, values, costs(0.15), mask)
     assert np.mean(np.abs(out - truth) < 1.0) > 0.99
     # the whole object one order off, and evidence that is noise around zero: nothing moves
     start = truth - 190.0
-    out = _settle_orders(start, values, costs(0.0), mask)
+    out = settle_orders(start, values, costs(0.0), mask)
     assert np.array_equal(out, start)
 
 

@@ -4,7 +4,7 @@ transmission on both sides against tmm, energy conservation, Mitsuba's thindiele
 import numpy as np
 import pytest
 import tmm
-from test_plugin import _normal, _sensor, _stokes
+from _plugin_scenes import normal_from_angles, orthographic_sensor, stokes_images
 
 ASYMMETRIC = [(1.38, 120.0), (2.0 + 0.3j, 40.0), (1.46, 90.0)]  # absorbing: sides differ
 ASYMMETRIC_TEXT = "1.38:120, 2.0+0.3i:40, 1.46:90"
@@ -30,13 +30,13 @@ def _sheet_scene(mi, bsdf, theta_deg, light, back=False, res=2, spp=SPP):
     (transmission likewise). The stratified sampler without jitter puts the ``spp`` values of that
     choice at the centres of ``spp`` strata, so the fraction of reflected paths in a pixel is within
     1/(2 spp) of p, and the pixel within (R + T)/(2 spp) ≤ 1/(2 spp) of R (or T): the tolerance."""
-    n = _normal(theta_deg, 0.0)
+    n = normal_from_angles(theta_deg, 0.0)
     target = list(-n) if back else list(n)
     to_world = mi.ScalarTransform4f().look_at(origin=[0, 0, 0], target=target, up=[0, 1, 0])
     scene = {
         "type": "scene",
         "integrator": {"type": "stokes", "nested": {"type": "path", "max_depth": 3}},
-        "sensor": _sensor(mi, res, spp=spp),
+        "sensor": orthographic_sensor(mi, res, spp=spp),
         "sheet": {"type": "rectangle", "to_world": to_world @ mi.ScalarTransform4f().scale(20.0),
                   "bsdf": bsdf},
     }
@@ -70,7 +70,7 @@ def test_rendered_reflection_and_transmission_match_tmm(variant_llvm_ad_mono_pol
             params = mi.traverse(scene)
             params["sheet.bsdf.wavelength"] = lam
             params.update()
-            S0, S1, S2, S3 = _stokes(mi, scene)
+            S0, S1, S2, S3 = stokes_images(mi, scene)
             # The plane of incidence is the image's x-z plane, s is image y: S1 = -(X_s - X_p)/2.
             tol = 1 / (2 * SPP) + 1e-5
             np.testing.assert_allclose(S0, 0.5 * (ref_s[key] + ref_p[key]), atol=tol, rtol=0)
@@ -94,7 +94,7 @@ def test_lossless_sheet_under_uniform_sky_conserves_energy(variant_llvm_ad_mono_
         params.update()
         # One path per pixel: whichever lobe it takes, S0 = (R + T) = 1 exactly (S1 is not: each lobe
         # alone is polarized, their probability-weighted sum is not).
-        S0 = _stokes(mi, scene)[0]
+        S0 = stokes_images(mi, scene)[0]
         np.testing.assert_allclose(S0, 1.0, atol=2e-5)
 
 

@@ -208,8 +208,8 @@ def test_bare_interface_transmission_mueller_equals_mitsuba(variant_scalar_spect
         r_s, r_p, t_s, t_p = optics.stack_amplitudes(c, 550.0, [], eta, transmission=True)
         f_s, f_p = optics.transmission_factors(c, eta)
         assert abs(f_s - f_p) <= 1e-14 * f_s
-        ours_t = optics._mueller_matrix(*optics.transmission_mueller_entries(t_s, t_p, f_s))
-        ours_r = optics._mueller_matrix(*optics.mueller_entries(r_s, r_p))
+        ours_t = optics.mueller_matrix(*optics.transmission_mueller_entries(t_s, t_p, f_s))
+        ours_r = optics.mueller_matrix(*optics.mueller_entries(r_s, r_p))
         np.testing.assert_allclose(ours_t, np.array(mi.mueller.specular_transmission(c, eta)), atol=2e-6)
         np.testing.assert_allclose(ours_r, np.array(mi.mueller.specular_reflection(c, eta)), atol=2e-6)
 

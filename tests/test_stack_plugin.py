@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 import tmm
-from test_plugin import _plane_scene, _random_interactions, _stokes
+from _plugin_scenes import plane_scene, random_interactions, stokes_images
 
 QW = 550.0
 BRAGG = [(2.35, QW / (4 * 2.35)), (1.38, QW / (4 * 1.38))] * 10
@@ -21,7 +21,7 @@ def _tmm_powers(theta_deg, lam, layers, substrate, n1=1.0):
 
 
 def _check_render(mi, scene, theta, lam, layers, substrate, n1=1.0):
-    S0, S1, S2, S3 = _stokes(mi, scene)
+    S0, S1, S2, S3 = stokes_images(mi, scene)
     Rs, Rp = _tmm_powers(theta, lam, layers, substrate, n1)
     # φ = 0: the s-direction is image y, so S1 = I(0°) − I(90°) = −(Rs − Rp)/2 (test_plugin.py).
     np.testing.assert_allclose(S0, 0.5 * (Rs + Rp), atol=1e-4, rtol=0)
@@ -49,7 +49,7 @@ def test_mono_polarized_stack_render_matches_tmm(variant_llvm_ad_mono_polarized,
     mi = variant_llvm_ad_mono_polarized
     params_in, layers, substrate = CASES[name]
     theta = 40.0
-    scene = _plane_scene(mi, {"type": "thinfilm", **params_in}, theta, 0.0)
+    scene = plane_scene(mi, {"type": "thinfilm", **params_in}, theta, 0.0)
     params = mi.traverse(scene)
     for lam in (450.0, 550.0, 640.0):
         params["plane.bsdf.wavelength"] = lam
@@ -59,9 +59,9 @@ def test_mono_polarized_stack_render_matches_tmm(variant_llvm_ad_mono_polarized,
 
 def test_bragg_mirror_render_reflects_in_its_stop_band(variant_llvm_ad_mono_polarized):
     mi = variant_llvm_ad_mono_polarized
-    scene = _plane_scene(mi, {"type": "thinfilm", "stack": _stack_text(BRAGG), "substrate_ior": 1.52,
+    scene = plane_scene(mi, {"type": "thinfilm", "stack": _stack_text(BRAGG), "substrate_ior": 1.52,
                               "wavelength": 550.0}, 10.0, 0.0)
-    assert np.all(_stokes(mi, scene)[0] > 0.99)
+    assert np.all(stokes_images(mi, scene)[0] > 0.99)
 
 
 def test_thickness_scale_multiplies_every_layer(variant_llvm_ad_mono_polarized):
@@ -69,7 +69,7 @@ def test_thickness_scale_multiplies_every_layer(variant_llvm_ad_mono_polarized):
     mi = variant_llvm_ad_mono_polarized
     layers = [(1.38, 110.0), (2.1, 70.0)]
     theta, lam = 35.0, 520.0
-    scene = _plane_scene(mi, {"type": "thinfilm", "stack": _stack_text(layers), "substrate_ior": 1.6,
+    scene = plane_scene(mi, {"type": "thinfilm", "stack": _stack_text(layers), "substrate_ior": 1.6,
                               "wavelength": lam}, theta, 0.0)
     params = mi.traverse(scene)
     for scale in (0.0, 0.6, 1.7):
@@ -81,7 +81,7 @@ def test_thickness_scale_multiplies_every_layer(variant_llvm_ad_mono_polarized):
     bsdf = {"type": "thinfilm", "thickness": 300.0, "film_ior": 1.45, "substrate_ior": 1.6,
             "wavelength": lam,
             "thickness_scale": {"type": "bitmap", "bitmap": tex, "raw": True, "filter_type": "nearest"}}
-    S0 = _stokes(mi, _plane_scene(mi, bsdf, theta, 0.0, res=8))[0]
+    S0 = stokes_images(mi, plane_scene(mi, bsdf, theta, 0.0, res=8))[0]
     expected = {s: 0.5 * sum(_tmm_powers(theta, lam, [(1.45, 300.0 * s)], 1.6)) for s in (0.5, 2.0)}
     halves = (S0[:, :2], S0[:, -2:])
     found = sorted(s for half in halves for s, v in expected.items() if np.allclose(half, v, atol=1e-4))
@@ -99,7 +99,7 @@ def test_named_absorbing_film_keeps_its_extinction(variant_llvm_ad_spectral_pola
         layers_of = (lambda n_au: [(n_au, 25.0)]) if "film_ior" in bsdf else \
             (lambda n_au: [(1.38, 90.0), (n_au, 25.0)])
         plugin = mi.load_dict(bsdf)
-        si = _random_interactions(mi, 24, seed=9)[0]
+        si = random_interactions(mi, 24, seed=9)[0]
         _, value = plugin.sample(mi.BSDFContext(), si, 0.5, mi.Point2f(0.5, 0.5))
         m00, lams, cos_t = np.array(value[0, 0]), np.array(si.wavelengths), np.array(si.wi.z)
         worst = 0.0
@@ -120,7 +120,7 @@ def test_one_layer_stack_equals_single_film_bit_for_bit(mitsuba_variant):
     mi = mitsuba_variant
     import drjit as dr
 
-    si = _random_interactions(mi, 64, seed=11)[0]
+    si = random_interactions(mi, 64, seed=11)[0]
     ctx = mi.BSDFContext()
     results = []
     for bsdf in ({"stack": "1.45:380"}, {"film_ior": 1.45, "thickness": 380.0},
@@ -150,7 +150,7 @@ def test_stack_layers_are_exposed_and_differentiable(variant_llvm_ad_mono_polari
     assert "layer_0.ior" not in keys and "thickness" not in keys and "film_ior" not in keys
     assert abs(params["layer_2.k"][0] - 0.01) < 1e-7
 
-    si = _random_interactions(mi, 8, seed=4)[0]
+    si = random_interactions(mi, 8, seed=4)[0]
     ctx = mi.BSDFContext()
 
     def m00(d):

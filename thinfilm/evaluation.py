@@ -207,7 +207,7 @@ def render_normal_map(normals, thickness_nm, valid, wavelengths_nm, film, dome_h
     scene = normal_map_scene(safe_normals, thickness, valid, film, dome_hole_deg=float(dome_hole_deg),
                              roughness=float(roughness))
     if roughness > 0:
-        from thinfilm.generators.render import BSDF_SAMPLING_INTEGRATOR
+        from thinfilm.generators.scene import BSDF_SAMPLING_INTEGRATOR
 
         # one BSDF sample to the dome per path: each pixel is a flat patch that sees only the dome
         out = render_stokes_cube(scene, wl, float(band_fwhm_nm), passband, progress=progress, spp=int(spp),

@@ -21,7 +21,7 @@ import numpy as np
 
 from thinfilm.core.errors import UserError
 
-__all__ = ["load_scene", "scene_inputs", "output_files", "render_to_files", "cli_main"]
+__all__ = ["load_scene", "scene_inputs", "output_files", "render_to_files", "write_bitmap", "cli_main"]
 
 
 def _transform(mi, spec, where):
@@ -218,7 +218,7 @@ def render_to_files(scene, out_stem, spp=None, seed=0, exposure="auto", overwrit
         except Exception as e:
             raise UserError(f"cannot render the scene: {_one_line(e)}") from None
         bitmap = scene.sensors()[0].film().bitmap(raw=False)
-        _write_bitmap(mi, bitmap, tmp_exr, mi.Bitmap.FileFormat.OpenEXR)
+        write_bitmap(mi, bitmap, tmp_exr, mi.Bitmap.FileFormat.OpenEXR)
         # The first group of channels is the image itself (RGB, luminance or Stokes S0).
         parts = bitmap.split()
         image = np.array(parts[0][1], dtype=np.float32)
@@ -230,11 +230,11 @@ def render_to_files(scene, out_stem, spp=None, seed=0, exposure="auto", overwrit
         image = image * _gain(image, exposure)
         srgb = mi.Bitmap(image.astype(np.float32), mi.Bitmap.PixelFormat.RGB).convert(
             mi.Bitmap.PixelFormat.RGB, mi.Struct.Type.UInt8, srgb_gamma=True)
-        _write_bitmap(mi, srgb, tmp_png, mi.Bitmap.FileFormat.PNG)
+        write_bitmap(mi, srgb, tmp_png, mi.Bitmap.FileFormat.PNG)
     return exr, png
 
 
-def _write_bitmap(mi, bitmap, path: Path, file_format) -> None:
+def write_bitmap(mi, bitmap, path: Path, file_format) -> None:
     """Encode in memory, then write with Python: a full disk raises ``OSError`` (Mitsuba's
     own file writer leaves an empty file and reports success)."""
     stream = mi.MemoryStream()

@@ -35,7 +35,7 @@ from importlib import resources
 
 import numpy as np
 
-from .optics import _NUMPY, _ops_for
+from .optics import NUMPY_OPS, ops_for
 
 __all__ = [
     "Constant",
@@ -91,8 +91,8 @@ class Tabulated:
     k_values: tuple = field(repr=False)
 
     def _interp(self, values, wavelength_nm):
-        ops = _ops_for(wavelength_nm)
-        if ops is _NUMPY:
+        ops = ops_for(wavelength_nm)
+        if ops is NUMPY_OPS:
             grid = self.start_nm + self.step_nm * np.arange(len(values))
             return np.interp(np.asarray(wavelength_nm, dtype=np.float64), grid, values)
         import drjit as dr

@@ -15,7 +15,7 @@ conductor's Fresnel term replaced by the film's reflection Mueller matrix:
 
 With ``thickness = 0`` a rough film is therefore ``roughconductor`` with
 ``eta = substrate_ior, k = substrate_k``, sample by sample. The film itself enters only
-through the plugin's ``_entries(si, cos_theta, count, active)`` (its Mueller entries at the
+through the plugin's ``film_entries(si, cos_theta, count, active)`` (its Mueller entries at the
 ray's wavelengths, or integrated against the colour basis in RGB variants), so film stacks
 and RGB variants are rough in the same way.
 
@@ -39,6 +39,8 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
+from .bsdf_common import fail, mueller_spectrum, positive_float, texture_parameter, to_stokes_bases
+
 __all__ = ["Roughness", "sample", "evaluate", "pdf", "evaluate_pdf"]
 
 _DISTRIBUTIONS = {"ggx": "GGX", "beckmann": "Beckmann"}
@@ -54,23 +56,21 @@ class Roughness:
     """
 
     def __init__(self, props):
-        from .plugin import _fail, _positive_float, _texture
-
         has_uv = "alpha_u" in props or "alpha_v" in props
         if has_uv and not ("alpha_u" in props and "alpha_v" in props):
-            _fail("parameters 'alpha_u' and 'alpha_v' must be given together")
+            fail("parameters 'alpha_u' and 'alpha_v' must be given together")
         if has_uv and "alpha" in props:
-            _fail("give either 'alpha' or 'alpha_u' and 'alpha_v', not both")
+            fail("give either 'alpha' or 'alpha_u' and 'alpha_v', not both")
         self.names = ("alpha_u", "alpha_v") if has_uv else ("alpha",)
         self.values = {}
         rough = False
         for name in self.names:
-            tex = _texture(props, name)
+            tex = texture_parameter(props, name)
             if tex is not None:
                 self.values[name] = tex
                 rough = True
             else:
-                value = _positive_float(props, name, 0.0, allow_zero=True)
+                value = positive_float(props, name, 0.0, allow_zero=True)
                 self.values[name] = mi.Float(value)
                 rough = rough or value > 0
         self.is_rough = rough
@@ -78,12 +78,12 @@ class Roughness:
 
         name = props.get("distribution", "ggx") if "distribution" in props else "ggx"
         if not isinstance(name, str) or name.lower() not in _DISTRIBUTIONS:
-            _fail(f"parameter 'distribution' must be 'ggx' or 'beckmann', got {name!r}")
+            fail(f"parameter 'distribution' must be 'ggx' or 'beckmann', got {name!r}")
         self.distribution_name = name.lower()
         self.type = getattr(mi.MicrofacetType, _DISTRIBUTIONS[self.distribution_name])
         visible = props.get("sample_visible", True) if "sample_visible" in props else True
         if not isinstance(visible, bool):
-            _fail(f"parameter 'sample_visible' must be a boolean, got {visible!r}")
+            fail(f"parameter 'sample_visible' must be a boolean, got {visible!r}")
         self.sample_visible = visible
 
         flags = mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide
@@ -147,17 +147,15 @@ def _film_fresnel(bsdf, ctx, si, wo, m, active):
     Mueller matrix at ``cos θ = wo_hat·m``, light arriving along ``-wo_hat`` and leaving along
     ``wi_hat``, rotated from the frame of the plane of reflection into Mitsuba's Stokes bases.
     """
-    from .plugin import _mueller, _to_stokes_bases
-
     if not mi.is_polarized:
-        return bsdf._entries(si, dr.dot(si.wi, m), 1, active)[0]
+        return bsdf.film_entries(si, dr.dot(si.wi, m), 1, active)[0]
 
     radiance = ctx.mode == mi.TransportMode.Radiance
     wo_hat = wo if radiance else si.wi
     wi_hat = si.wi if radiance else wo
-    a, b, c, s = bsdf._entries(si, dr.dot(wo_hat, m), 4, active)
+    a, b, c, s = bsdf.film_entries(si, dr.dot(wo_hat, m), 4, active)
     # The Stokes reference axis of this matrix is perpendicular to the plane of reflection about m.
-    return _to_stokes_bases(_mueller(a, b, c, s), wo_hat, wi_hat, normal=m)
+    return to_stokes_bases(mueller_spectrum(a, b, c, s), wo_hat, wi_hat, normal=m)
 
 
 def _scaled(F, weight, active):

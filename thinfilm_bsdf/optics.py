@@ -84,9 +84,12 @@ __all__ = [
     "transmission_factors",
     "mueller_entries",
     "transmission_mueller_entries",
+    "mueller_matrix",
     "reflection_mueller",
     "sheet_mueller",
     "interface_amplitudes",
+    "ops_for",
+    "NUMPY_OPS",
 ]
 
 
@@ -129,7 +132,8 @@ class _DrJitOps:
         self.maximum = dr.maximum
 
 
-_NUMPY = _NumpyOps()
+#: the NumPy backend (what :func:`ops_for` returns for anything but Dr.Jit arrays)
+NUMPY_OPS = _NumpyOps()
 _DRJIT: _DrJitOps | None = None
 
 
@@ -139,8 +143,10 @@ def _is_drjit(x: Any) -> bool:
     return module.startswith("drjit") or module.startswith("mitsuba")
 
 
-def _ops_for(*values):
-    """Pick the backend from the arguments: Dr.Jit if any of them is a Dr.Jit array."""
+def ops_for(*values):
+    """Pick the backend from the arguments: Dr.Jit if any of them is a Dr.Jit array (or a
+    :class:`Complex` of them), else :data:`NUMPY_OPS`. The backend has ``sqrt``, ``exp``,
+    ``cos``, ``sin``, ``abs``, ``select`` and ``maximum``."""
     global _DRJIT
     for v in values:
         if isinstance(v, Complex):
@@ -149,7 +155,7 @@ def _ops_for(*values):
             if _DRJIT is None:
                 _DRJIT = _DrJitOps()
             return _DRJIT
-    return _NUMPY
+    return NUMPY_OPS
 
 
 # ---------------------------------------------------------------------------
@@ -272,7 +278,7 @@ def _csqrt(z: Complex, ops) -> Complex:
     as ``Im z / (2t)``, so a nearly real argument (a weakly absorbing medium) keeps its
     small imaginary part accurately instead of losing it to cancellation.
     """
-    if z.is_real and ops is _NUMPY and np.all(np.asarray(z.re) >= 0):
+    if z.is_real and ops is NUMPY_OPS and np.all(np.asarray(z.re) >= 0):
         return Complex(np.sqrt(z.re))
     t = ops.sqrt(0.5 * (ops.sqrt(z.re * z.re + z.im * z.im) + ops.abs(z.re)))
     small = ops.select(t > 0, 0.5 * z.im / ops.select(t > 0, t, 1.0), 0.0 * t)
@@ -428,10 +434,10 @@ def reflection_mueller(cos_theta1, wavelength_nm, thickness_nm, film_ior, substr
     """
     r_s, r_p = film_amplitudes(cos_theta1, wavelength_nm, thickness_nm, film_ior,
                                substrate_ior, substrate_k, ext_ior, film_k)
-    return _mueller_matrix(*mueller_entries(r_s, r_p))
+    return mueller_matrix(*mueller_entries(r_s, r_p))
 
 
-def _mueller_matrix(a, b, c, s) -> np.ndarray:
+def mueller_matrix(a, b, c, s) -> np.ndarray:
     """The ``(..., 4, 4)`` NumPy matrix ``[[a, b, 0, 0], [b, a, 0, 0], [0, 0, c, s], [0, 0, -s, c]]``."""
     a, b, c, s = np.broadcast_arrays(*(np.asarray(v, dtype=np.float64) for v in (a, b, c, s)))
     z = np.zeros_like(a)
@@ -530,9 +536,9 @@ def stack_amplitudes(cos_theta1, wavelength_nm, layers, substrate_ior, substrate
     (0.9995, 1.0)
     """
     layers = _layer_triples(layers)
-    ops = _ops_for(cos_theta1, wavelength_nm, substrate_ior, substrate_k, ext_ior,
-                   *[v for layer in layers for v in layer])
-    numpy_in = ops is _NUMPY
+    ops = ops_for(cos_theta1, wavelength_nm, substrate_ior, substrate_k, ext_ior,
+                  *[v for layer in layers for v in layer])
+    numpy_in = ops is NUMPY_OPS
     if numpy_in:
         cos_theta1 = np.asarray(cos_theta1, dtype=np.float64)
         wavelength_nm = np.asarray(wavelength_nm, dtype=np.float64)
@@ -580,8 +586,8 @@ def transmission_factors(cos_theta1, substrate_ior, substrate_k=0.0, ext_ior=1.0
     is the exterior medium. Zero at grazing incidence (``cos θ1 = 0``). Real arrays
     (NumPy or Dr.Jit).
     """
-    ops = _ops_for(cos_theta1, substrate_ior, substrate_k, ext_ior)
-    if ops is _NUMPY:
+    ops = ops_for(cos_theta1, substrate_ior, substrate_k, ext_ior)
+    if ops is NUMPY_OPS:
         cos_theta1 = np.asarray(cos_theta1, dtype=np.float64)
     n1 = ext_ior * 1.0
     n_sub = _index(substrate_ior, substrate_k)
@@ -655,5 +661,5 @@ def sheet_mueller(cos_theta1, wavelength_nm, layers, ext_ior=1.0):
     of ``layers`` (see :func:`sheet_amplitudes`).
     """
     r_s, r_p, t_s, t_p = sheet_amplitudes(cos_theta1, wavelength_nm, layers, ext_ior)
-    return (_mueller_matrix(*mueller_entries(r_s, r_p)),
-            _mueller_matrix(*transmission_mueller_entries(t_s, t_p)))
+    return (mueller_matrix(*mueller_entries(r_s, r_p)),
+            mueller_matrix(*transmission_mueller_entries(t_s, t_p)))

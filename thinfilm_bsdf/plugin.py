@@ -139,265 +139,14 @@ Example
 
 from __future__ import annotations
 
-import numbers
-
 import drjit as dr
 import mitsuba as mi
 
 from . import microfacet, optics, rgb
-from .materials import Constant, as_dispersion, parse_stack
+from .bsdf_common import (Film, broadcast_like, check_parameters, mueller_spectrum, positive_float,
+                          to_stokes_bases, variant_class)
 
-__all__ = ["bsdf_class", "register", "variant_class"]
-
-
-def _fail(message: str, plugin: str = "thinfilm"):
-    raise ValueError(f"{plugin}: {message}")
-
-
-def _positive_float(props, name, default, allow_zero=False, plugin="thinfilm"):
-    value = props.get(name, default) if name in props else default
-    if not isinstance(value, numbers.Real):
-        _fail(f"parameter '{name}' must be a number, got {type(value).__name__}", plugin)
-    value = float(value)
-    if value < 0 or (value == 0 and not allow_zero) or value != value:
-        _fail(f"parameter '{name}' must be {'>= 0' if allow_zero else '> 0'}, got {value}", plugin)
-    return value
-
-
-def _texture(props, name):
-    """The texture given for ``name`` (a texture or spectrum object), else None."""
-    if name not in props:
-        return None
-    value = props.get(name)
-    if isinstance(value, mi.Texture):
-        return value
-    if props.type(name) == mi.Properties.Type.Spectrum:
-        return props.get_unbounded_texture(name)
-    return None
-
-
-class _Film:
-    """The film of a plugin: one film (``thickness``, ``film_ior``, ``film_k``) or a ``stack``,
-    with ``thickness_scale``. Reads the properties, exposes and checks the parameters, and
-    gives the layers ``(n, k, thickness_nm)`` at a surface point for the optics core.
-
-    Shared by the ``thinfilm`` and ``thinfilm_sheet`` plugins (``plugin`` names the one
-    in error messages).
-    """
-
-    def __init__(self, props, plugin="thinfilm", default_ior=1.37, default_thickness=400.0):
-        self.plugin = plugin
-        self.scale_tex = _texture(props, "thickness_scale")
-        self.scale = mi.Float(1.0 if self.scale_tex is not None else
-                              _positive_float(props, "thickness_scale", 1.0, allow_zero=True))
-        self.stack = None
-        if "stack" in props:
-            given = [name for name in ("thickness", "film_ior", "film_k") if name in props]
-            if given:
-                _fail(f"parameter 'stack' cannot be combined with '{given[0]}' "
-                      f"(write the film as a stack layer instead)", plugin)
-            text = props.get("stack")
-            if not isinstance(text, str):
-                _fail(f"parameter 'stack' must be a string 'INDEX:THICKNESS_NM, ...', "
-                      f"got {type(text).__name__}", plugin)
-            try:
-                layers = parse_stack(text)
-            except ValueError as e:
-                _fail(f"parameter 'stack': {e}", plugin)
-            self.stack = [_StackLayer(layer) for layer in layers]
-            return
-
-        # Thickness: number or texture.
-        self.thickness_tex = _texture(props, "thickness")
-        if self.thickness_tex is not None:
-            self.thickness = mi.Float(0.0)
-        else:
-            self.thickness = mi.Float(_positive_float(props, "thickness", default_thickness,
-                                                      allow_zero=True, plugin=plugin))
-
-        # Film index: number, spectrum texture, n+ki text or material name; extinction.
-        self.ior_tex = _texture(props, "film_ior")
-        self.dispersion = None
-        k = None
-        raw = props.get("film_ior", default_ior) if "film_ior" in props else default_ior
-        if self.ior_tex is not None:
-            if mi.is_rgb and props.type("film_ior") == mi.Properties.Type.Spectrum \
-                    and "uniform=" not in str(raw):
-                _fail("parameter 'film_ior': a spectrum needs a spectral variant (Mitsuba's RGB "
-                      "variants reduce it to a colour); give a number or a material name", plugin)
-            self.ior = mi.Float(0.0)
-        elif isinstance(raw, str):
-            try:
-                disp = as_dispersion(raw)
-            except ValueError as e:
-                _fail(f"parameter 'film_ior': {e}", plugin)
-            if isinstance(disp, Constant):
-                self.ior = mi.Float(disp.n)
-                k = disp.k
-            else:
-                self.dispersion = disp
-                self.ior = mi.Float(0.0)
-            if "film_k" in props and (self.dispersion is not None or k):
-                _fail(f"parameter 'film_k' cannot be combined with film_ior {raw!r}, which "
-                      f"brings its own extinction", plugin)
-        else:
-            self.ior = mi.Float(_positive_float(props, "film_ior", default_ior, plugin=plugin))
-        if k is None:
-            k = _positive_float(props, "film_k", 0.0, allow_zero=True, plugin=plugin)
-        self.k = mi.Float(k)
-
-    # -- parameters ---------------------------------------------------------
-
-    def opaque(self):
-        """The scalar parameters, to be made opaque (kernel inputs, not literals)."""
-        values = [self.scale]
-        if self.stack is None:
-            values += [self.thickness, self.ior, self.k]
-        else:
-            for layer in self.stack:
-                values += [layer.thickness, layer.ior, layer.k]
-        return values
-
-    def traverse(self, callback):
-        diff = mi.ParamFlags.Differentiable
-        callback.put("thickness_scale", self.scale_tex if self.scale_tex is not None else self.scale,
-                     diff)
-        if self.stack is not None:
-            for i, layer in enumerate(self.stack):
-                callback.put(f"layer_{i}.thickness", layer.thickness, diff)
-                if layer.dispersion is None:
-                    callback.put(f"layer_{i}.ior", layer.ior, diff)
-                    callback.put(f"layer_{i}.k", layer.k, diff)
-            return
-        callback.put("thickness", self.thickness_tex if self.thickness_tex is not None
-                     else self.thickness, diff)
-        if self.ior_tex is not None:
-            callback.put("film_ior", self.ior_tex, diff)
-        elif self.dispersion is None:
-            callback.put("film_ior", self.ior, diff)
-        if self.dispersion is None:
-            callback.put("film_k", self.k, diff)
-
-    def checks(self):
-        """``(name, value, allow_zero)`` for every scalar parameter (see ``_check``)."""
-        out = [] if self.scale_tex is not None else [("thickness_scale", self.scale, True)]
-        if self.stack is not None:
-            for i, layer in enumerate(self.stack):
-                out.append((f"layer_{i}.thickness", layer.thickness, True))
-                if layer.dispersion is None:
-                    out += [(f"layer_{i}.ior", layer.ior, False), (f"layer_{i}.k", layer.k, True)]
-            return out
-        if self.thickness_tex is None:
-            out.append(("thickness", self.thickness, True))
-        if self.ior_tex is None and self.dispersion is None:
-            out.append(("film_ior", self.ior, False))
-        out.append(("film_k", self.k, True))
-        return out
-
-    def describe(self) -> str:
-        if self.stack is not None:
-            return "stack=[" + ", ".join(layer.describe() for layer in self.stack) + "]"
-        film = (self.dispersion.name if self.dispersion is not None
-                else "texture" if self.ior_tex is not None else self.ior)
-        thickness = "texture" if self.thickness_tex is not None else self.thickness
-        return f"thickness={thickness} nm, film_ior={film}, film_k={self.k}"
-
-    # -- layers at a surface point --------------------------------------------
-
-    def layers(self, si, wavelengths, active):
-        """``[(n, k, thickness_nm), ...]`` from the exterior down, at ``si`` and ``wavelengths``."""
-        scale = (self.scale_tex.eval_1(si, active) if self.scale_tex is not None else self.scale)
-        if self.stack is not None:
-            return [layer.at(wavelengths, scale) for layer in self.stack]
-        if self.ior_tex is not None and mi.is_rgb:  # RGB: one (grey) index per point
-            n = _like(self.ior_tex.eval_1(si, active), wavelengths)
-        elif self.ior_tex is not None:
-            n = self.ior_tex.eval(si, active)
-        elif self.dispersion is not None:
-            n = self.dispersion(wavelengths)
-        else:
-            n = mi.UnpolarizedSpectrum(self.ior)
-        k = self.dispersion.extinction(wavelengths) if self.dispersion is not None else self.k
-        if self.thickness_tex is not None:
-            thickness = dr.maximum(self.thickness_tex.eval_1(si, active), 0.0)
-        else:
-            thickness = self.thickness
-        return [(n, k, thickness * scale)]
-
-
-class _StackLayer:
-    """One layer of a ``stack`` parameter: its thickness and constant index as opaque Floats,
-    or a tabulated material."""
-
-    def __init__(self, layer):
-        self.thickness = mi.Float(layer.thickness_nm)
-        if isinstance(layer.material, Constant):
-            self.dispersion = None
-            self.ior = mi.Float(layer.material.n)
-            self.k = mi.Float(layer.material.k)
-        else:
-            self.dispersion = layer.material
-            self.ior = mi.Float(0.0)
-            self.k = mi.Float(0.0)
-
-    def at(self, wavelengths, scale):
-        if self.dispersion is not None:
-            return (self.dispersion(wavelengths), self.dispersion.extinction(wavelengths),
-                    self.thickness * scale)
-        return self.ior, self.k, self.thickness * scale
-
-    def describe(self) -> str:
-        index = self.dispersion.name if self.dispersion is not None else f"{self.ior}+{self.k}i"
-        return f"{index}:{self.thickness}"
-
-
-def _check(plugin, checks):
-    """Refuse a parameter update that makes a value negative (or zero where not allowed) or NaN."""
-    for name, value, allow_zero in checks:
-        v = dr.ravel(value)
-        bad = dr.any((v < 0) | (v != v)) if allow_zero else dr.any((v <= 0) | (v != v))
-        if bool(bad):
-            _fail(f"parameter '{name}' must be {'>= 0' if allow_zero else '> 0'}, got {value}",
-                  plugin)
-
-
-def _like(value, wavelengths):
-    """``value`` (a Float per lane) broadcast to the type of ``wavelengths``."""
-    cls = type(wavelengths)
-    return value if type(value) is cls else cls(value)
-
-
-def _mueller(a, b, c, s):
-    """Mitsuba's Mueller matrix ``[[a, b, 0, 0], [b, a, 0, 0], [0, 0, c, s], [0, 0, -s, c]]``."""
-    value = dr.zeros(mi.Spectrum)
-    value[0, 0] = a
-    value[0, 1] = b
-    value[1, 0] = b
-    value[1, 1] = a
-    value[2, 2] = c
-    value[2, 3] = s
-    value[3, 2] = -s
-    value[3, 3] = c
-    return value
-
-
-def _to_stokes_bases(value, wo_hat, wi_hat, normal=None):
-    """Rotate a Mueller matrix given in the s/p frame (Stokes reference axis perpendicular to
-    the plane of incidence) into Mitsuba's implicit Stokes bases of ``-wo_hat`` (incoming
-    light) and ``wi_hat`` (outgoing light), as Mitsuba's ``conductor`` and ``dielectric`` do.
-    ``normal`` is the reflecting surface's normal: the shading normal by default, a
-    microfacet normal in ``roughconductor``'s way."""
-    n = mi.Vector3f(0, 0, 1) if normal is None else normal
-    s_in = dr.cross(n, -wo_hat)
-    s_out = dr.cross(n, wi_hat)
-    collinear = dr.all(s_in == mi.Vector3f(0))
-    s_in = dr.select(collinear, mi.Vector3f(1, 0, 0), dr.normalize(s_in))
-    s_out = dr.select(collinear, mi.Vector3f(1, 0, 0), dr.normalize(s_out))
-    return mi.mueller.rotate_mueller_basis(
-        value,
-        -wo_hat, s_in, mi.mueller.stokes_basis(-wo_hat),
-        wi_hat, s_out, mi.mueller.stokes_basis(wi_hat),
-    )
+__all__ = ["bsdf_class", "register"]
 
 
 class _ThinFilmMixin:
@@ -412,11 +161,11 @@ class _ThinFilmMixin:
         # RGB variants: the film's spectra are integrated against a colour basis (rgb.py).
         self.m_rgb = rgb.colour_basis() if mi.is_rgb else None
 
-        self.m_film = _Film(props)
-        self.m_substrate_ior = mi.Float(_positive_float(props, "substrate_ior", 1.6))
-        self.m_substrate_k = mi.Float(_positive_float(props, "substrate_k", 0.0, allow_zero=True))
-        self.m_ext_ior = mi.Float(_positive_float(props, "ext_ior", 1.0))
-        self.m_wavelength = mi.Float(_positive_float(props, "wavelength", 550.0))
+        self.m_film = Film(props)
+        self.m_substrate_ior = mi.Float(positive_float(props, "substrate_ior", 1.6))
+        self.m_substrate_k = mi.Float(positive_float(props, "substrate_k", 0.0, allow_zero=True))
+        self.m_ext_ior = mi.Float(positive_float(props, "ext_ior", 1.0))
+        self.m_wavelength = mi.Float(positive_float(props, "wavelength", 550.0))
 
         self.m_rough = microfacet.Roughness(props)
         if self.m_rough.is_rough:
@@ -444,7 +193,7 @@ class _ThinFilmMixin:
         self.m_rough.traverse(callback)
 
     def parameters_changed(self, keys=[]):
-        _check("thinfilm", self.m_film.checks() + self.m_rough.checks() + [
+        check_parameters("thinfilm", self.m_film.checks() + self.m_rough.checks() + [
             ("substrate_ior", self.m_substrate_ior, False),
             ("substrate_k", self.m_substrate_k, True),
             ("ext_ior", self.m_ext_ior, False),
@@ -472,7 +221,7 @@ class _ThinFilmMixin:
         reflection; ``a`` alone is the unpolarized reflectance.
         """
         r_s, r_p = optics.stack_amplitudes(
-            _like(cos_theta, wavelengths),
+            broadcast_like(cos_theta, wavelengths),
             wavelengths,
             self.m_film.layers(si, wavelengths, active),
             self.m_substrate_ior,
@@ -481,12 +230,13 @@ class _ThinFilmMixin:
         )
         return optics.mueller_entries(r_s, r_p)
 
-    def _entries(self, si, cos_theta, count, active):
+    def film_entries(self, si, cos_theta, count, active):
         """The first ``count`` Mueller entries in the variant's colour representation.
 
         Spectral and mono variants: :meth:`_mueller_entries` at the ray's wavelengths. RGB
         variants: integrated over the visible range against the colour basis
-        (:func:`thinfilm.bsdf.rgb.integrate`).
+        (:func:`thinfilm.bsdf.rgb.integrate`). The rough lobe (:mod:`.microfacet`) calls it at
+        a microfacet's angle of incidence.
         """
         if self.m_rgb is not None:
             return rgb.integrate(self.m_rgb, lambda lam: self._mueller_entries(si, cos_theta, lam, active),
@@ -495,16 +245,16 @@ class _ThinFilmMixin:
 
     def _value(self, ctx, si, wo, active):
         if not mi.is_polarized:
-            (a,) = self._entries(si, mi.Frame3f.cos_theta(si.wi), 1, active)
+            (a,) = self.film_entries(si, mi.Frame3f.cos_theta(si.wi), 1, active)
             return mi.UnpolarizedSpectrum(a)
 
         # Light arrives along -wo_hat and leaves along +wi_hat (as in Mitsuba's conductor).
         radiance = ctx.mode == mi.TransportMode.Radiance
         wo_hat = wo if radiance else si.wi
         wi_hat = si.wi if radiance else wo
-        a, b, c, s = self._entries(si, mi.Frame3f.cos_theta(wo_hat), 4, active)
+        a, b, c, s = self.film_entries(si, mi.Frame3f.cos_theta(wo_hat), 4, active)
         # The Stokes reference axis of this matrix is perpendicular to the plane of reflection.
-        return _to_stokes_bases(_mueller(a, b, c, s), wo_hat, wi_hat)
+        return to_stokes_bases(mueller_spectrum(a, b, c, s), wo_hat, wi_hat)
 
     # -- BSDF interface -----------------------------------------------------
 
@@ -544,25 +294,6 @@ class _ThinFilmMixin:
                 f"substrate_ior={self.m_substrate_ior}, substrate_k={self.m_substrate_k}, "
                 f"ext_ior={self.m_ext_ior}, wavelength={self.m_wavelength} nm"
                 + (f", {self.m_rough.describe()}" if self.m_rough.is_rough else "") + "]")
-
-
-_CLASSES: dict = {}
-
-
-def variant_class(mixin, base: str, name: str):
-    """A subclass of ``mi.<base>`` for the current Mitsuba variant, with ``mixin``'s methods.
-
-    ``mi.BSDF``, ``mi.Texture`` … are different classes in every variant, and nanobind
-    classes take one base, so Python plugins copy their methods into a per-variant subclass.
-    """
-    variant = mi.variant()
-    if variant is None:
-        raise RuntimeError(f"{name}: call mitsuba.set_variant(...) before using the plugin")
-    key = (name, variant)
-    if key not in _CLASSES:
-        namespace = {k: v for k, v in vars(mixin).items() if k not in ("__dict__", "__weakref__")}
-        _CLASSES[key] = type(name, (getattr(mi, base),), namespace)
-    return _CLASSES[key]
 
 
 def bsdf_class():

@@ -81,8 +81,8 @@ import drjit as dr
 import mitsuba as mi
 
 from . import optics, rgb
-from .plugin import (_check, _Film, _like, _mueller, _positive_float, _to_stokes_bases,
-                     variant_class)
+from .bsdf_common import (Film, broadcast_like, check_parameters, mueller_spectrum, positive_float,
+                          to_stokes_bases, variant_class)
 
 __all__ = ["sheet_class", "register"]
 
@@ -95,9 +95,9 @@ class _ThinFilmSheetMixin:
     def __init__(self, props):
         mi.BSDF.__init__(self, props)
         self.m_rgb = rgb.colour_basis() if mi.is_rgb else None
-        self.m_film = _Film(props, plugin=_NAME, default_ior=1.33)
-        self.m_ext_ior = mi.Float(_positive_float(props, "ext_ior", 1.0, plugin=_NAME))
-        self.m_wavelength = mi.Float(_positive_float(props, "wavelength", 550.0, plugin=_NAME))
+        self.m_film = Film(props, plugin=_NAME, default_ior=1.33)
+        self.m_ext_ior = mi.Float(positive_float(props, "ext_ior", 1.0, plugin=_NAME))
+        self.m_wavelength = mi.Float(positive_float(props, "wavelength", 550.0, plugin=_NAME))
 
         sides = mi.BSDFFlags.FrontSide | mi.BSDFFlags.BackSide
         self.m_components = [mi.BSDFFlags.DeltaReflection | sides, mi.BSDFFlags.Null | sides]
@@ -115,8 +115,8 @@ class _ThinFilmSheetMixin:
         callback.put("wavelength", self.m_wavelength, mi.ParamFlags.NonDifferentiable)
 
     def parameters_changed(self, keys=[]):
-        _check(_NAME, self.m_film.checks() + [("ext_ior", self.m_ext_ior, False),
-                                              ("wavelength", self.m_wavelength, False)])
+        check_parameters(_NAME, self.m_film.checks() + [("ext_ior", self.m_ext_ior, False),
+                                                        ("wavelength", self.m_wavelength, False)])
         self._make_opaque()
 
     # -- physics ------------------------------------------------------------
@@ -143,11 +143,11 @@ class _ThinFilmSheetMixin:
             order = []
             for top, bottom in zip(layers, reversed(layers)):
                 order.append(tuple(
-                    dr.select(front, _like(x, wavelengths), _like(y, wavelengths))
+                    dr.select(front, broadcast_like(x, wavelengths), broadcast_like(y, wavelengths))
                     for x, y in zip(top, bottom)))
             layers = order
         r_s, r_p, t_s, t_p = optics.sheet_amplitudes(
-            _like(dr.abs(cos_theta), wavelengths), wavelengths, layers, self.m_ext_ior)
+            broadcast_like(dr.abs(cos_theta), wavelengths), wavelengths, layers, self.m_ext_ior)
         return optics.mueller_entries(r_s, r_p), optics.transmission_mueller_entries(t_s, t_p)
 
     def _lobes(self, ctx, si, active):
@@ -175,8 +175,8 @@ class _ThinFilmSheetMixin:
         radiance = ctx.mode == mi.TransportMode.Radiance
         wo_r = mi.reflect(si.wi)
         wo_t = -si.wi
-        value_r = _to_stokes_bases(_mueller(*refl), *((wo_r, si.wi) if radiance else (si.wi, wo_r)))
-        value_t = _to_stokes_bases(_mueller(*trans), *((wo_t, si.wi) if radiance else (si.wi, wo_t)))
+        value_r = to_stokes_bases(mueller_spectrum(*refl), *((wo_r, si.wi) if radiance else (si.wi, wo_r)))
+        value_t = to_stokes_bases(mueller_spectrum(*trans), *((wo_t, si.wi) if radiance else (si.wi, wo_t)))
         return value_r, value_t, R, T
 
     # -- BSDF interface -----------------------------------------------------
