@@ -459,8 +459,17 @@ class ObservationModel:
         self.backend = backend
         self.precision = precision
         self.quadrature = quadrature
-        self.sub_nm, self.weights = rig.quadrature(quadrature)
-        self.windows = band_windows(self.weights)
+        self.bands = len(rig.wavelengths_nm)
+        if quadrature == "centre" or rig.band_fwhm_nm == 0:
+            # point samples: band b is sub-wavelength b (no (B, B) identity of weights, which a
+            # spectrometer's thousands of samples would make gigabytes)
+            if quadrature not in QUADRATURES:
+                raise ValueError(f"quadrature must be one of {QUADRATURES}, got {quadrature!r}")
+            self.sub_nm, self.weights = np.asarray(rig.wavelengths_nm, dtype=np.float64), None
+            self.windows = np.stack([np.arange(self.bands), np.arange(self.bands) + 1], axis=1)
+        else:
+            self.sub_nm, self.weights = rig.quadrature(quadrature)
+            self.windows = band_windows(self.weights)
         self.layers = len(film.layers)
         if any(layer.material is None for layer in film.layers):
             raise ValueError("the observation model needs every layer's index")
@@ -497,8 +506,11 @@ class ObservationModel:
             width = int(np.max(np.diff(self.windows, axis=1)))
             idx = self.windows[:, :1] + np.arange(width)[None, :]
             valid = idx < self.windows[:, 1:2]
-            flat = np.where(valid, self.weights[np.arange(self.weights.shape[0])[:, None],
-                                                np.minimum(idx, self.weights.shape[1] - 1)], 0.0)
+            if self.weights is None:
+                flat = np.ones(self.bands)
+            else:
+                flat = np.where(valid, self.weights[np.arange(self.bands)[:, None],
+                                                    np.minimum(idx, self.sub_nm.size - 1)], 0.0)
             t.win_w = t.upload(flat)
             t.win_width = width
             t.win_first = t.UInt32(self.windows[:, 0].astype(np.uint32))
@@ -645,7 +657,7 @@ class ObservationModel:
             r, J = observations.residuals_rgb(acc, row, dev, dr, Float)
             sums = _normal_terms(r, J, Q)
         else:
-            bands = dr.opaque(UInt32, self.weights.shape[0])
+            bands = dr.opaque(UInt32, self.bands)
 
             def body(b, *sums):
                 vals, tans = self._band_values(at, b, Q)
@@ -709,7 +721,7 @@ class ObservationModel:
             return vals, jac
         if kind not in ("stokes", "spectral_s", "sp"):
             raise ValueError(f"kind must be stokes, spectral_s, sp or polarized_rgb, got {kind!r}")
-        B = self.weights.shape[0]
+        B = self.bands
         at, row, Q, lane = self._lanes(x, parametrization, fixed, None, (wrt if derivatives else ()), repeat=B)
         b = lane - (lane // B) * B
         vals, tans = self._band_values(at, b, Q)
@@ -765,8 +777,9 @@ class ObservationModel:
         t = self.types
         dr, Float, UInt32 = t.dr, t.Float, t.UInt32
         if getattr(t, "rgb_w", None) is None:
-            t.rgb_w = t.upload(self.weights.T @ self.rig.camera_weights())      # (K, 3)
-        subs = dr.opaque(UInt32, self.weights.shape[1])
+            cw = self.rig.camera_weights()
+            t.rgb_w = t.upload(cw if self.weights is None else self.weights.T @ cw)      # (K, 3)
+        subs = dr.opaque(UInt32, self.sub_nm.size)
 
         def body(k, *acc):
             vals, tans = at(k)
@@ -808,7 +821,7 @@ class ObservationModel:
         d = np.where(ok[:, None], d, 0.0)
         t = self.types
         dr, Float, UInt32 = t.dr, t.Float, t.UInt32
-        B = self.weights.shape[0]
+        B = self.bands
         out = {k: np.empty((n, B)) for k in ("S0", "S1", "S2")}
         offsets = [float(v) for v in (index_offset if index_offset is not None else [])]
         per = max(1, chunk // B)

@@ -435,12 +435,12 @@ def estimate_film_ior_either_side(spectra, wavelengths_nm, substrate_ior, max_pi
         fine = fine[np.abs(fine - g0) <= coarse_step + 1e-9]
         total, d_best = pooled_search(S, t, lam, substrate_ior, wl, fine, limits)
         k = int(np.argmin(total))
-        results[above] = (float(total[k]) / idx.size, float(fine[k]), S, t, d_best[:, k])
+        results[above] = (float(total[k]) / idx.size, float(fine[k]), S, t, d_best[:, k], lam)
     if not results:
         raise UserError("spectral_s: no pixel shows an interference extremum at a usable angle "
                         f"({angle_range_deg[0]:g}°-{angle_range_deg[1]:g}°), so the film index cannot be estimated")
     above = min(results, key=lambda a: results[a][0])
-    _, n2_grid, S, t, d0 = results[above]
+    _, n2_grid, S, t, d0, lam = results[above]
     ok = np.isfinite(d0)
     bounds = (substrate_ior + 1e-3, FILM_IOR_MAX) if above else (1.0, substrate_ior - 1e-3)
     n2_fit, _, _, sse = joint_film_ior(S[ok], t[ok], d0[ok], n2_grid, substrate_ior, wl, bounds=bounds)
@@ -450,10 +450,20 @@ def estimate_film_ior_either_side(spectra, wavelengths_nm, substrate_ior, max_pi
         # spectra (the two interfaces' amplitudes swap; n2 d is the same): only oblique
         # pixels tell them apart. Where the data cannot (the fits differ by less than the
         # noise), the larger index is taken: a film of n3 / n2 below sqrt(n3) is rare.
+        # The mirrored index gets the same search as the first: its own orders from the pooled
+        # (n2, m) search around n3 / n2 (the first fit's thicknesses scaled to it can sit a
+        # fringe off at oblique pixels), then the joint fit.
         n2_m = substrate_ior / n2_fit
         if 1.0 < n2_m < substrate_ior - 1e-3 and abs(n2_m - n2_fit) > 0.02:
-            d_m = d0[ok] * n2_fit / n2_m
-            n2_mf, _, _, sse_m = joint_film_ior(S[ok], t[ok], d_m, n2_m, substrate_ior, wl, bounds=bounds)
+            fine = film_ior_grid(substrate_ior, False, 0.01)
+            fine = fine[np.abs(fine - n2_m) <= coarse_step + 1e-9]
+            total_m, d_best_m = pooled_search(S[ok], t[ok], lam[ok], substrate_ior, wl, fine, limits)
+            k = int(np.argmin(total_m))
+            d_m, n2_start = d_best_m[:, k], float(fine[k])
+            keep = np.isfinite(d_m)
+            if not np.all(keep):  # pixels the mirrored orders miss keep the scaled thickness
+                d_m = np.where(keep, d_m, d0[ok] * n2_fit / n2_m)
+            n2_mf, _, _, sse_m = joint_film_ior(S[ok], t[ok], d_m, n2_start, substrate_ior, wl, bounds=bounds)
             from .peaks import band_noise
 
             sigma2 = float(np.median(band_noise(S[ok, :b]))) ** 2
