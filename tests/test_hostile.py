@@ -192,7 +192,7 @@ def bench_at(scheduler):
 
 
 def _group_spec(parts):
-    body = "".join(f"[[shape.parts]]\nkind = 'sphere'\nradius = 0.1\noffset = [{i % 50 * 0.01}, 0, 0]\n"
+    body = "".join(f"[[shape.parts]]\nkind = 'hemisphere'\nradius = 0.1\noffset = [{i % 50 * 0.01}, 0, 0]\n"
                    for i in range(parts))
     return "[shape]\nkind = 'group'\n" + body
 
@@ -611,7 +611,7 @@ CASES = [
          "box.obj: the mesh has 12 faces, at most 10", patch=_few_faces),
     Case("generate/group-3000-parts", gen_spec("group.toml"), "'shape.parts' holds 3000 parts, at most",
          setup=lambda c: c.write("group.toml", _group_spec(3000))),
-    Case("generate/stack-3000-layers", gen_spec("stack.toml"), "'film.layers' holds 3000 layers, at most",
+    Case("generate/stack-3000-layers", gen_spec("stack.toml"), "'film.layers' holds 3000 layers, at most 200",
          setup=lambda c: c.write("stack.toml", _stack_spec(3000))),
     Case("reconstruct/meta-wavelengths-empty", rec("spectral"), "'wavelengths_nm' is empty",
          setup=_json_edit("ds/meta.json", wavelengths_nm=[])),
