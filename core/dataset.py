@@ -15,6 +15,8 @@ arrays, same bytes).
 
 from __future__ import annotations
 
+import os
+
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -52,6 +54,43 @@ def _no_nan(arr, path, names):
         raise UserError(f"{path}: channel '{bad}' contains NaN or infinite values")
 
 
+#: the largest capture value taken in reflectance units (a reflectance is at most about 1; a
+#: highlight or a saturated pixel a few times that): anything larger is a capture in other units
+#: or a damaged file, refused rather than fitted
+MAX_REFLECTANCE_CAPTURE = 1e3
+#: the largest capture value taken in relative units (``units = "relative"``, raw counts)
+MAX_RELATIVE_CAPTURE = 1e30
+
+
+def _physical(arr, path, names, meta, valid=None):
+    """``arr`` (..., C) of capture channels ``names`` holds no value beyond the limit of the
+    dataset's units (inside ``valid`` when given); name the first channel that does."""
+    relative = meta.get("units") == "relative"
+    limit = MAX_RELATIVE_CAPTURE if relative else MAX_REFLECTANCE_CAPTURE
+    flat = np.abs(arr).reshape(-1, arr.shape[-1])
+    if valid is not None and valid.shape == arr.shape[:-1]:
+        flat = flat[np.asarray(valid).reshape(-1)]
+    if flat.size == 0:
+        return
+    peak = flat.max(axis=0)
+    if np.any(peak > limit):
+        i = int(np.argmax(peak > limit))
+        units = "relative units" if relative else "reflectance units (a reflectance is at most about 1)"
+        raise UserError(f"{path}: channel '{names[i]}' holds {float(peak[i]):.3g}, not a capture in "
+                        f"{units}; at most {limit:g} is taken")
+
+
+def _same_bands(ch, prefix, count, path, meta_path):
+    """The band channels (``prefix`` + ``band000`` …) of an EXR are no more than ``count``, the
+    wavelengths of ``meta.json`` (fewer: the first missing one is named by ``_require``)."""
+    first = band_channel(0)
+    stem = first.rstrip("0123456789")
+    held = sum(1 for k in ch if k.startswith(prefix + stem) and k[len(prefix + stem):].isdigit())
+    if held > count:
+        raise UserError(f"{meta_path}: lists {count} wavelengths but {path.name} holds {held} bands "
+                        f"({prefix}{stem}…); expected one wavelength per band")
+
+
 def _check_meta(meta, meta_path):
     if not isinstance(meta, dict):
         raise UserError(f"{meta_path}: expected a JSON object, got {type(meta).__name__}")
@@ -63,6 +102,9 @@ def _check_meta(meta, meta_path):
                 isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) for v in values):
             raise UserError(f"{meta_path}: '{key}' must be a list of numbers, got {values!r}"[:300])
     wl = meta.get("wavelengths_nm", [])
+    if "wavelengths_nm" in meta and not wl:
+        raise UserError(f"{meta_path}: 'wavelengths_nm' is empty; expected the bands' wavelengths in nm "
+                        f"(or no such key)")
     if len(wl) > 1 and np.any(np.diff(wl) <= 0):
         raise UserError(f"{meta_path}: 'wavelengths_nm' must be increasing")
     if any(v <= 0 for v in wl):
@@ -193,11 +235,20 @@ def read_dataset(path, need=("polarized_rgb",), optional=None) -> Dataset:
         p = root / name
         if file_part[name] not in wanted:
             return None
-        if not p.is_file():
+        if not os.path.exists(p) or os.path.isdir(p):  # a pipe or a device: read_exr refuses it
             if required:
                 raise UserError(f"{p}: file not found")
             return None
         return p, read_exr(p)
+
+    def valid_mask():  # the pixels whose captures are checked: valid.exr's, when it is readable
+        p = root / "valid.exr"
+        if not os.path.isfile(p):
+            return None
+        try:
+            return read_exr(p, ["valid"])["valid"] > 0.5
+        except UserError:
+            return None  # reported below, with the shape check
 
     got = load("ground_truth.exr", "ground_truth" in need)
     if got:
@@ -222,6 +273,7 @@ def read_dataset(path, need=("polarized_rgb",), optional=None) -> Dataset:
             rgb = _require(ch, [f"{layer}.R", f"{layer}.G", f"{layer}.B"], p, shape)
             img = np.stack(list(rgb.values()), axis=-1)
             _no_nan(img, p, list(rgb))
+            _physical(img, p, list(rgb), meta, valid_mask())
             ds.polarized_rgb[int(round(a)) % 360] = img
 
     bands = meta.get("wavelengths_nm", [])
@@ -232,22 +284,29 @@ def read_dataset(path, need=("polarized_rgb",), optional=None) -> Dataset:
         names = [band_channel(i) for i in range(len(bands))]
         if not names:
             raise UserError(f"{meta_path}: 'wavelengths_nm' is empty but {p.name} is present")
+        _same_bands(ch, "", len(bands), p, meta_path)
         cube = np.stack(list(_require(ch, names, p, shape).values()), axis=-1)
         _no_nan(cube, p, names)
+        _physical(cube, p, names, meta, valid_mask())
         ds.spectral_s = cube
 
     got = load("stokes_spectral.exr", "stokes" in need)
     if got:
         p, ch = got
         shape = shape or next(iter(ch.values())).shape
+        if not bands:
+            raise UserError(f"{meta_path}: no 'wavelengths_nm' but {p.name} is present")
         for s in ("S0", "S1", "S2"):
+            _same_bands(ch, f"{s}.", len(bands), p, meta_path)
             names = [f"{s}.{band_channel(i)}" for i in range(len(bands))]
             cube = np.stack(list(_require(ch, names, p, shape).values()), axis=-1)
             _no_nan(cube, p, names)
+            if s == "S0":
+                _physical(cube, p, names, meta, valid_mask())
             ds.stokes[s] = cube
 
     p = root / "valid.exr"
-    if p.is_file():
+    if os.path.exists(p) and not os.path.isdir(p):
         arr = read_exr(p, ["valid"])["valid"]
         if shape is not None and arr.shape != shape:
             raise UserError(f"{p}: channel 'valid' has shape {arr.shape}, expected {shape}")

@@ -385,9 +385,19 @@ def read_exr(path, channels=None) -> dict:
     off or not an EXR at all never reaches OpenEXR, which would print about it on the
     process's standard error. Safe to call from several threads at once.
     """
+    import os
+    import stat
+
+    from .files import open_regular, special_file_kind
+
     path = Path(path)
     try:
-        with open(path, "rb") as f:
+        kind = special_file_kind(os.stat(path).st_mode)
+        if kind is not None:  # a named pipe, a device: never opened, a read could block or never end
+            raise ExrError(path, "unreadable", f"not a regular file ({kind}), expected an EXR file")
+        if stat.S_ISDIR(os.stat(path).st_mode):
+            raise IsADirectoryError(path)
+        with open_regular(path, "EXR file") as f:
             data = f.read()
     except FileNotFoundError:
         raise ExrError(path, "not-found", "file not found") from None

@@ -58,6 +58,8 @@ __all__ = ["geometry", "part_mesh", "MESH_SECTIONS"]
 
 #: angular sections of the meshes built here (around an axis, along a profile)
 MESH_SECTIONS = 256
+#: the most triangles a ``mesh`` shape's file may hold (counted before the mesh is processed)
+MAX_MESH_FACES = 2_000_000
 
 
 def _rotation(deg):
@@ -258,10 +260,19 @@ def _load_mesh(shape):
 
     path = shape.params["path"]
     try:
-        loaded = trimesh.load(path, force="mesh", process=True)
+        loaded = trimesh.load(path, force="mesh", process=False)
     except Exception as e:  # trimesh raises many types for unreadable files
         raise UserError(f"{path}: cannot load mesh ({e})") from None
     if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
+        raise UserError(f"{path}: no triangles found in the mesh file")
+    if len(loaded.faces) > MAX_MESH_FACES:
+        raise UserError(f"{path}: the mesh has {len(loaded.faces)} faces, at most {MAX_MESH_FACES} are taken "
+                        f"(decimate it first)")
+    # before trimesh's processing, which drops non-finite vertices (and the faces using them)
+    if not np.all(np.isfinite(loaded.vertices)):
+        raise UserError(f"{path}: mesh has non-finite vertex positions (NaN or infinite)")
+    loaded.process()
+    if len(loaded.faces) == 0:
         raise UserError(f"{path}: no triangles found in the mesh file")
     mesh = loaded.copy()
     mesh.apply_transform(np.block([[_rotation(shape.params["rotate_deg"]) * shape.params["scale"], np.zeros((3, 1))],

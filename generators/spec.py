@@ -228,6 +228,8 @@ def _parse_value(text: str):
         return tomllib.loads(f"v = {text}")["v"]
     except tomllib.TOMLDecodeError:
         return text.strip()
+    except RecursionError:
+        raise UserError("the value is nested too deeply") from None
 
 
 def apply_override(spec: dict, item: str) -> None:
@@ -251,7 +253,10 @@ def apply_override(spec: dict, item: str) -> None:
     parts = [p.strip() for p in key.strip().split(".")]
     if not all(parts):
         raise UserError(f"malformed key {key!r}", argument="set", value=repr(item))
-    value = _parse_value(text)
+    try:
+        value = _parse_value(text)
+    except UserError as e:
+        raise UserError(e.message, argument="set", value=item if len(item) <= 60 else item[:60] + "…") from None
     node = spec
     for i, part in enumerate(parts[:-1]):
         child = node.get(part)

@@ -61,6 +61,11 @@ _SHAPE_KEYS = {
               "rotate_deg": ("vec3", [0.0, 0.0, 0.0])},
     "group": {"parts": ("parts", _REQUIRED)},
 }
+#: the most parts a ``group`` shape may have (counted before any part is checked or built: each
+#: is a mesh of up to about 130 000 triangles)
+MAX_GROUP_PARTS = 64
+#: the most layers a film ``layers`` stack may have (counted before any layer is checked)
+MAX_STACK_LAYERS = 200
 #: shape kinds a ``group`` part may be
 _PART_KINDS = tuple(k for k in _SHAPE_KEYS if k not in ("mesh", "group"))
 
@@ -280,8 +285,11 @@ class Checker:
                 raise UserError(f"{self.source}: '{where}' names a file that does not exist: {path}")
             return str(path)
         if kind == "layers":
-            if not isinstance(value, list) or not value or len(value) > 200:
-                self.fail(where, "a list of 1 to 200 layer tables { ior = ..., thickness_nm = ... }", value)
+            if isinstance(value, list) and len(value) > MAX_STACK_LAYERS:
+                raise UserError(f"{self.source}: '{where}' holds {len(value)} layers, at most {MAX_STACK_LAYERS}")
+            if not isinstance(value, list) or not value:
+                self.fail(where, f"a list of 1 to {MAX_STACK_LAYERS} layer tables {{ ior = ..., thickness_nm = ... }}",
+                          value)
             return [self.table(f"{where}[{i}]", layer, _LAYER_KEYS, {}) for i, layer in enumerate(value)]
         if kind == "bitmap":
             path = self.check("file", where, value)
@@ -349,6 +357,9 @@ class Checker:
         raise AssertionError(kind)
 
     def _parts(self, where, value):
+        if isinstance(value, list) and len(value) > MAX_GROUP_PARTS:
+            raise UserError(f"{self.source}: '{where}' holds {len(value)} parts, at most {MAX_GROUP_PARTS} "
+                            f"(each part is a mesh of its own; join them into one 'mesh' shape instead)")
         if not isinstance(value, list) or not value:
             self.fail(where, "a list of shape tables (each with a kind and an offset)", value)
         parts = []

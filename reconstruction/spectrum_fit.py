@@ -114,6 +114,8 @@ __all__ = [
     "GAIN_DEGREE_MAX",
     "DEFAULT_THICKNESS_RANGE_NM",
     "MIN_POINTS",
+    "MAX_VALUE",
+    "estimated_memory_bytes",
 ]
 
 BACKGROUND_DEGREE = 1
@@ -951,6 +953,31 @@ def _fit_problem(problem, Yfit):
             "g": g_best, "p_lin": problem.p_b + g_best}
 
 
+#: the largest magnitude of a spectrum value (any units): beyond it squares overflow
+MAX_VALUE = 1e100
+
+
+def estimated_memory_bytes(wavelengths_nm, model, thickness_range_nm=None, spectra=1) -> int:
+    """About how many bytes :func:`fit_spectra` needs at its peak for ``spectra`` spectra on
+    the strictly increasing ``wavelengths_nm``: the instrument's weights over the sub-sampled
+    wavelengths (a dense square matrix, so the need grows with the square of the samples), a
+    chunk of the thickness grid's reflectances and design matrices, and the per-spectrum
+    profiles. Computed from the sizes alone, before anything is allocated."""
+    lam = np.asarray(wavelengths_nm, dtype=np.float64)
+    n = lam.size
+    lo, hi = _thickness_range(lam, model, thickness_range_nm)
+    q = model.phase_index(lam)
+    _, width = _pixels(lam, 1)
+    m = int(np.clip(np.ceil(12.0 * np.max(width / (lam * lam / (2.0 * q * hi)))), 1, _MAX_SUBSAMPLES))
+    K = max(int(np.ceil((hi - lo) / (lam[0] / (8.0 * float(q.max()))))) + 1, 16)
+    G = GAIN_DEGREE_MAX + 1
+    P = G + BACKGROUND_DEGREE + 1
+    sub = n * m
+    words = (sub * sub + 16 * sub * 16 + 16 * n * P * 12 + n * G * (G + P)
+             + 8 * K * int(spectra) + 16 * n * int(spectra))
+    return int(8 * 1.2 * words + 64e6)
+
+
 def fit_spectra(wavelengths_nm, spectra, model, *, background=None, reference=None,
                 thickness_range_nm=None, fit_film_ior=False):
     """Fit the film thickness (and index) of spectra sampled on one wavelength grid.
@@ -987,6 +1014,8 @@ def fit_spectra(wavelengths_nm, spectra, model, *, background=None, reference=No
         raise ValueError("wavelengths_nm must be strictly increasing")
     if not np.all(np.isfinite(Y)):
         raise ValueError("spectra contain NaN or infinite values")
+    if np.max(np.abs(Y)) > MAX_VALUE:
+        raise ValueError(f"spectra hold values beyond {MAX_VALUE:g} in magnitude")
     bg = None if background is None else np.asarray(background, dtype=np.float64)
     ref = None if reference is None else np.asarray(reference, dtype=np.float64)
     for name, arr in (("background", bg), ("reference", ref)):
@@ -994,7 +1023,14 @@ def fit_spectra(wavelengths_nm, spectra, model, *, background=None, reference=No
             raise ValueError(f"{name} must be finite and sampled on the spectra's wavelengths")
     d_range = _thickness_range(lam, model, thickness_range_nm)
 
+    for name, arr in (("background", bg), ("reference", ref)):
+        if arr is not None and np.max(np.abs(arr)) > MAX_VALUE:
+            raise ValueError(f"{name} holds values beyond {MAX_VALUE:g} in magnitude")
     Yfit = Y - bg[None, :] if bg is not None else Y
+    flat = np.flatnonzero(np.ptp(Yfit, axis=1) <= 1e-12 * np.max(np.abs(Yfit), axis=1))
+    if flat.size:
+        raise ValueError(f"spectrum {int(flat[0])} does not vary: a spectrum without variation holds no "
+                         f"thickness information")
     S, n = Y.shape[0], lam.size
     problem = _Problem(lam, model, bg, ref, d_range, fit_film_ior,
                        None if bg is not None else BACKGROUND_DEGREE)

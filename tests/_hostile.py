@@ -142,8 +142,8 @@ def copy_base(base: Path, root: Path) -> None:
 
 
 def snapshot(root: Path) -> dict:
-    """Every file, folder and link below ``root`` (and ``root`` itself): kind, mode, bytes or
-    link target."""
+    """Every file, folder, link and special file below ``root`` (and ``root`` itself): kind,
+    mode, bytes or link target."""
     root = Path(root)
     out = {".": ("dir", stat.S_IMODE(os.lstat(root).st_mode))}
     for dirpath, dirnames, filenames in os.walk(root, followlinks=False):
@@ -155,6 +155,8 @@ def snapshot(root: Path) -> dict:
                 out[rel] = ("link", os.readlink(p))
             elif stat.S_ISDIR(st.st_mode):
                 out[rel] = ("dir", stat.S_IMODE(st.st_mode))
+            elif not stat.S_ISREG(st.st_mode):  # a named pipe or socket: never opened
+                out[rel] = ("special", stat.S_IFMT(st.st_mode), stat.S_IMODE(st.st_mode))
             else:
                 out[rel] = ("file", stat.S_IMODE(st.st_mode), p.read_bytes())
     return out

@@ -5,6 +5,7 @@ project's optics core) times a random smooth instrument response, plus a backgro
 """
 
 import json
+import os
 
 import numpy as np
 import pytest
@@ -363,3 +364,55 @@ def test_nan_outside_the_fitted_range_is_ignored(tmp_path, capsys):
     assert "not a finite number" in capsys.readouterr().err
     assert main(["fit-spectrum", path, *ARGS, "--json", "--wavelength-range", "420", "850"]) == 0
     assert abs(json.loads(capsys.readouterr().out)["thickness_nm"] - 2000.0) <= 20.0
+
+
+def _run_capped(args, cwd, limit_bytes):
+    """``thinfilm ARGS`` in a subprocess whose address space is capped at ``limit_bytes``."""
+    import resource
+    import subprocess
+    import sys
+
+    def cap():
+        resource.setrlimit(resource.RLIMIT_AS, (limit_bytes, limit_bytes))
+
+    return subprocess.run([sys.executable, "-m", "thinfilm.cli", *map(str, args)], cwd=cwd, capture_output=True,
+                          text=True, preexec_fn=cap, timeout=300)
+
+
+@pytest.mark.parametrize("make, fragment", [
+    # 3 million lines, 45 MB (sparse: the size alone refuses it, before a byte is read)
+    (lambda p: os.truncate(p, 45_000_000), "is 45000000 bytes, at most"),
+    # 2 million short lines under the size limit: refused while counting, before parsing
+    (lambda p: p.write_bytes(b"1 2\n" * 2_000_000), "has more than 100000 lines"),
+])
+def test_a_huge_spectrum_is_refused_before_parsing_under_a_memory_cap(tmp_path, make, fragment):
+    path = tmp_path / "huge.txt"
+    path.touch()
+    make(path)
+    run = _run_capped(["fit-spectrum", path, "--film-ior", "1.38", "--substrate-ior", "1.52"], tmp_path,
+                      4 * 2**30)
+    lines = run.stderr.strip().splitlines()
+    assert run.returncode == 2 and len(lines) == 1, run.stderr[-2000:]
+    assert "huge.txt" in lines[0] and fragment in lines[0] and "Traceback" not in run.stderr
+
+
+def test_the_memory_estimate_grows_with_the_square_of_the_samples():
+    from thinfilm.reconstruction.spectrum_fit import FilmModel, estimated_memory_bytes
+
+    model = FilmModel(1.38, 1.52)
+    small = estimated_memory_bytes(np.linspace(400, 700, 20_000), model)
+    large = estimated_memory_bytes(np.linspace(400, 700, 3_000_000), model)
+    assert 2e9 < small < 2e10  # about 4 GB measured for a 20 000-sample fit
+    assert large > 1e13
+
+
+@pytest.mark.parametrize("values, message", [
+    (np.zeros(40), "does not vary"),
+    (np.full(40, 0.05), "does not vary"),
+    (np.where(np.arange(40) == 3, 1e308, 0.05), r"beyond 1e\+100"),
+])
+def test_fit_spectra_refuses_spectra_without_information(values, message):
+    from thinfilm.reconstruction.spectrum_fit import FilmModel, fit_spectra
+
+    with pytest.raises(ValueError, match=message):
+        fit_spectra(np.linspace(400, 700, 40), values, FilmModel(1.38, 1.52))

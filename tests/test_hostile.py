@@ -118,6 +118,95 @@ def _full_disk_render(monkeypatch, c):
     monkeypatch.setattr(render_module, "write_bitmap", full)
 
 
+def _fifo(rel):
+    """A named pipe where a file is expected (nobody ever writes to it: a read would block)."""
+    def setup(c):
+        path = Path(c.p(rel))
+        path.parent.mkdir(parents=True, exist_ok=True)
+        if path.exists():
+            path.unlink()
+        os.mkfifo(path)
+    return setup
+
+
+@contextlib.contextmanager
+def _peer(answer):
+    """A loopback server that accepts connections and sends ``answer`` (bytes, or None for
+    nothing) to each; its address is set as ``c.peer``."""
+    import socket
+    import threading
+
+    srv = socket.socket()
+    srv.bind(("127.0.0.1", 0))
+    srv.listen(8)
+    held = []
+
+    def serve():
+        while True:
+            try:
+                conn, _ = srv.accept()
+            except OSError:
+                return
+            held.append(conn)
+            if answer is not None:
+                with contextlib.suppress(OSError):
+                    conn.sendall(answer)
+
+    threading.Thread(target=serve, daemon=True).start()
+    try:
+        yield f"tcp://127.0.0.1:{srv.getsockname()[1]}"
+    finally:
+        srv.close()
+        for conn in held:
+            conn.close()
+
+
+def _serving(answer):
+    def hold(c):
+        @contextlib.contextmanager
+        def cm():
+            with _peer(answer) as address:
+                c.peer = address
+                yield
+        return cm()
+    return hold
+
+
+def _closed_port(c):
+    import socket
+
+    s = socket.socket()
+    s.bind(("127.0.0.1", 0))
+    c.peer = f"tcp://127.0.0.1:{s.getsockname()[1]}"
+    s.close()
+
+
+def _short_connect_timeout(monkeypatch, c):
+    import thinfilm.cluster as cluster
+
+    monkeypatch.setattr(cluster, "CONNECT_TIMEOUT_S", 1.0)
+
+
+def bench_at(scheduler):
+    return lambda c: ["benchmark", "--quick", "--scheduler", scheduler(c), "--out", c.p("b")]
+
+
+def _group_spec(parts):
+    body = "".join(f"[[shape.parts]]\nkind = 'hemisphere'\nradius = 0.1\noffset = [{i % 50 * 0.01}, 0, 0]\n"
+                   for i in range(parts))
+    return "[shape]\nkind = 'group'\n" + body
+
+
+def _stack_spec(layers):
+    return "[film]\n" + "".join(f"[[film.layers]]\nior = 1.4\nthickness_nm = 100\n" for _ in range(layers))
+
+
+def _few_faces(monkeypatch, c):
+    import thinfilm.generators.shapes as shapes
+
+    monkeypatch.setattr(shapes, "MAX_MESH_FACES", 10)
+
+
 def gen(*extra, out="out"):
     return lambda c: ["generate", "hemisphere", *SMALL, *extra, "--out", c.p(out) if out else "/"]
 
@@ -482,6 +571,85 @@ CASES = [
     Case("benchmark/out-root", lambda c: ["benchmark", "--out", "/"], "file-system root"),
     Case("benchmark/lock-held", lambda c: ["benchmark", "--quick", "--out", c.p("b")], "another thinfilm command",
          hold=_lock("b")),
+
+
+    # --- bounded inputs: special files, long names, deep nesting, sizes, limits ---------------------
+    Case("generate/spec-is-a-fifo", gen_spec("fifo.toml"), "fifo.toml: not a regular file", setup=_fifo("fifo.toml")),
+    Case("render/scene-is-a-fifo", render(scene="fifo.toml"), "fifo.toml: not a regular file",
+         setup=_fifo("fifo.toml")),
+    Case("generate/camera-csv-is-a-fifo", gen("--set", "rig.camera=cam.csv"), "cam.csv",
+         setup=_fifo("cam.csv")),
+    Case("generate/spec-from-a-device", lambda c: ["generate", "/dev/zero", "--out", c.p("out")],
+         "/dev/zero: not a regular file"),
+    Case("fit-spectrum/spectrum-is-a-fifo", fit(spectrum="fifo.txt"), "fifo.txt: not a regular file",
+         setup=_fifo("fifo.txt")),
+    Case("fit-spectrum/background-is-a-fifo", fit("--background", "bg.txt"), "bg.txt: not a regular file",
+         setup=lambda c: (_spectrum(c), _fifo("bg.txt")(c))),
+    Case("reconstruct/mask-is-a-fifo", rec("rgb", "--mask", "m.npy"), "m.npy: not a regular file",
+         setup=_fifo("m.npy")),
+    Case("reconstruct/capture-is-a-fifo", rec(), "polarized_rgb.exr: not a regular file",
+         setup=_fifo("ds/polarized_rgb.exr")),
+    Case("evaluate/estimate-json-is-a-fifo", ev(), "estimate.json: not a regular file",
+         setup=_fifo("est/estimate.json")),
+    Case("import/image-is-a-fifo", imp(), "a090.png: not a regular file",
+         setup=lambda c: (_images(c), _fifo("imgs/a090.png")(c))),
+    Case("generate/spec-name-over-255", gen_spec("s" * 300 + ".toml"), "file name too long"),
+    Case("generate/spec-path-over-4096", gen_spec("d/" * 2100 + "s.toml"), "path too long"),
+    Case("reconstruct/dataset-name-over-255", rec(ds="d" * 300), "file name too long"),
+    Case("generate/out-name-over-255", gen(out="o" * 300), "file name too long"),
+    Case("fit-spectrum/path-over-4096", fit(spectrum="d/" * 2100 + "s.txt"), "path too long"),
+    Case("generate/toml-nested-3000", gen_spec("deep.toml"), "deep.toml: not valid TOML (nested too deeply)",
+         setup=lambda c: c.write("deep.toml", "x = " + "[" * 3000 + "]" * 3000 + "\n")),
+    Case("generate/set-nested-5000", gen("--set", "shape.radius=" + "[" * 5000 + "]" * 5000),
+         "--set shape.radius=[[[[", absent=("RecursionError",)),
+    Case("generate/spec-with-bom-is-read", gen_spec("bom.toml"), "unknown key 'shape.colour'",
+         setup=lambda c: c.write("bom.toml", b"\xef\xbb\xbf[shape]\nkind = 'hemisphere'\ncolour = 1\n")),
+    Case("generate/mesh-nan-vertex", gen("--set", "shape.kind=mesh", "--set", "shape.path=nan.obj"),
+         "nan.obj: mesh has non-finite vertex positions",
+         setup=_mesh("nan.obj", BOX_OBJ.replace("v -0.5 -0.5 0.0", "v nan -0.5 0.0"))),
+    Case("generate/mesh-too-many-faces", gen("--set", "shape.kind=mesh", "--set", "shape.path=box.obj"),
+         "box.obj: the mesh has 12 faces, at most 10", patch=_few_faces),
+    Case("generate/group-3000-parts", gen_spec("group.toml"), "'shape.parts' holds 3000 parts, at most",
+         setup=lambda c: c.write("group.toml", _group_spec(3000))),
+    Case("generate/stack-3000-layers", gen_spec("stack.toml"), "'film.layers' holds 3000 layers, at most 200",
+         setup=lambda c: c.write("stack.toml", _stack_spec(3000))),
+    Case("reconstruct/meta-wavelengths-empty", rec("spectral"), "'wavelengths_nm' is empty",
+         setup=_json_edit("ds/meta.json", wavelengths_nm=[])),
+    Case("reconstruct/meta-wavelengths-empty-rgb", rec(), "'wavelengths_nm' is empty",
+         setup=_json_edit("ds/meta.json", wavelengths_nm=[])),
+    Case("reconstruct/meta-fewer-wavelengths-than-bands", rec("spectral"),
+         "meta.json: lists 3 wavelengths but stokes_spectral.exr holds 9 bands",
+         setup=_json_edit("ds/meta.json", wavelengths_nm=[400.0, 440.0, 480.0])),
+    Case("reconstruct/captures-3e38", rec(), "polarized_rgb.exr: channel 'pol000.R' holds 3e+38",
+         setup=_exr_edit("ds/polarized_rgb.exr", lambda ch: _set(ch, [k for k in ch if k.startswith("pol")], 3e38))),
+    Case("reconstruct/spectral-captures-3e38", rec("spectral"), "stokes_spectral.exr: channel 'S0.band000' holds 3e+38",
+         setup=_exr_edit("ds/stokes_spectral.exr", lambda ch: _set(ch, [k for k in ch if k.startswith("S0.")], 3e38))),
+    Case("fit-spectrum/over-the-size-limit", fit(), "s.txt: the spectrum file (two columns: wavelength in nm, value) is 17000000 bytes, at most",
+         setup=lambda c: os.truncate(c.write("s.txt", ""), 17_000_000)),
+    Case("fit-spectrum/over-the-line-limit", fit(), "s.txt: the spectrum file (two columns: wavelength in nm, value) has more than 100000 lines",
+         setup=lambda c: c.write("s.txt", "".join(f"{400 + i * 1e-3:.3f},0.05\n" for i in range(100_001)))),
+    Case("fit-spectrum/all-zero", fit(), "no variation", setup=lambda c: _spectrum(c, lambda wl: 0.0 * wl)),
+    Case("fit-spectrum/constant", fit(), "no variation", setup=lambda c: _spectrum(c, lambda wl: 0 * wl + 0.05)),
+    Case("fit-spectrum/values-1e308", fit(), "line 2: the value 1e+308 is beyond", setup=lambda c: _spectrum(
+         c, lambda wl: np.where(wl == 410, 1e308, 0.04 + 0.02 * np.cos(wl / 30.0)))),
+    Case("fit-spectrum/background-brighter-than-the-signal", fit("--background", "bg.txt"), "the background is brighter than spectrum",
+         setup=lambda c: (_spectrum(c), c.write("bg.txt", "".join(f"{w},1.0\n" for w in range(390, 712, 10))))),
+    Case("fit-spectrum/more-memory-than-the-machine", fit(), "GiB of memory, this machine has",
+         setup=_spectrum, patch=lambda monkeypatch, c: monkeypatch.setattr(
+             "thinfilm.fit_spectrum._physical_memory", lambda: 2**20)),
+    Case("benchmark/scheduler-no-port", bench_at(lambda c: "tcp://localhost"), "--scheduler tcp://localhost: "),
+    Case("benchmark/scheduler-unknown-scheme", bench_at(lambda c: "foo://x:1"), "--scheduler foo://x:1: "),
+    Case("benchmark/scheduler-port-not-a-number", bench_at(lambda c: "tcp://127.0.0.1:http"), "--scheduler"),
+    Case("benchmark/scheduler-file-not-json", bench_at(lambda c: c.p("sched.json")), "sched.json: not valid JSON",
+         setup=lambda c: c.write("sched.json", "address = tcp://x:1\n")),
+    Case("benchmark/scheduler-file-numeric-address", bench_at(lambda c: c.p("sched.json")),
+         "sched.json: 'address' must be", setup=lambda c: c.write("sched.json", '{"address": 5}')),
+    Case("benchmark/scheduler-speaks-http", bench_at(lambda c: c.peer), "not a Dask scheduler",
+         hold=_serving(b"HTTP/1.1 400 Bad Request\r\nContent-Length: 0\r\n\r\n"), absent=("memory",)),
+    Case("benchmark/scheduler-says-nothing", bench_at(lambda c: c.peer), "no answer", patch=_short_connect_timeout,
+         hold=_serving(None)),
+    Case("benchmark/scheduler-unreachable", bench_at(lambda c: c.peer), "cannot connect", setup=_closed_port,
+         patch=_short_connect_timeout, absent=("memory",)),
 
     # --- methods and usage ------------------------------------------------------------------------
     Case("methods/extra-argument", lambda c: ["methods", "--jsn"], "unrecognized arguments"),

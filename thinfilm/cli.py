@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import errno
 import importlib
 import sys
 
@@ -445,6 +446,12 @@ def _run(argv) -> int:
         if signals.received() is not None:
             # A library turned the interrupt into an error of its own (an import cut short).
             return _interrupted(signals.received())
+        if isinstance(e, OSError) and e.errno == errno.ENAMETOOLONG and e.filename is not None:
+            # a path given by the user, met by a check that did not expect it to be refused
+            from .core.files import path_error
+
+            print(f"thinfilm: error: {_one_line(path_error(e.filename, 'file', e))}", file=sys.stderr)
+            return 2
         if _debug():
             raise
         what = f"{type(e).__name__}: {e}" if str(e) else type(e).__name__

@@ -13,7 +13,10 @@
 * ``scheduler=ADDRESS`` (``tcp://host:port``, or the JSON file of
   ``dask scheduler --scheduler-file``): an existing cluster (``dask scheduler`` and
   ``dask worker``); its workers need ``thinfilm`` importable and the output folder on a
-  shared file system. Their threads are left as the workers have them.
+  shared file system. Their threads are left as the workers have them. The address is
+  checked first (:func:`scheduler_address`), then the scheduler must answer within
+  :data:`CONNECT_TIMEOUT_S` seconds in Dask's protocol (:func:`probe_scheduler`): a peer that
+  says nothing or speaks another protocol is refused in one line, never waited on.
 
 Each task function sets the Mitsuba variant it needs itself (workers start with none), and
 writes its own output folder; what it returns (a small dict) comes back to the caller. The
@@ -96,14 +99,17 @@ def executor(workers: int | None = None, scheduler: str | None = None, max_worke
     if scheduler is not None:
         from distributed import Client
 
-        path = Path(scheduler).expanduser()
+        address = scheduler_address(scheduler)
+        probe_scheduler(address, scheduler)
         try:
-            if path.is_file():
-                client = Client(scheduler_file=str(path), timeout="20s")
-            else:
-                client = Client(scheduler, timeout="20s")
-        except OSError as e:
+            client = Client(address, timeout=f"{CONNECT_TIMEOUT_S:g}s")
+        except (OSError, TimeoutError) as e:
             raise UserError(f"--scheduler {scheduler}: cannot connect ({e})") from None
+        except (MemoryError, ValueError, TypeError, AssertionError) as e:
+            # what a peer that is no Dask scheduler makes the client read (a length out of an
+            # HTTP header)
+            raise UserError(f"--scheduler {scheduler}: {address} is not a Dask scheduler "
+                            f"({type(e).__name__})") from None
         try:
             try:
                 client.wait_for_workers(1, timeout=60)
@@ -138,6 +144,82 @@ def executor(workers: int | None = None, scheduler: str | None = None, max_worke
             client.close()
     finally:
         cluster.close()
+
+
+#: seconds the connection to ``--scheduler`` may take, including the scheduler's first answer
+CONNECT_TIMEOUT_S = 20.0
+
+_SCHEMES = ("tcp", "tls")
+
+
+def scheduler_address(scheduler: str) -> str:
+    """The address of ``--scheduler`` (``tcp://HOST:PORT``, ``tls://HOST:PORT``, or the JSON file
+    of ``dask scheduler --scheduler-file`` holding one as ``address``), checked; a malformed one
+    is a one-line :class:`UserError` naming the value."""
+    import os
+
+    from thinfilm.core.files import read_json
+
+    text = str(scheduler).strip()
+    where = f"--scheduler {scheduler}"
+    if "://" not in text and (text.lower().endswith(".json") or os.path.exists(os.path.expanduser(text))):
+        path = Path(text).expanduser()
+        data = read_json(path, missing="a scheduler file written by 'dask scheduler --scheduler-file'")
+        address = data.get("address") if isinstance(data, dict) else None
+        if not isinstance(address, str):
+            raise UserError(f"{path}: 'address' must be a scheduler address (tcp://HOST:PORT), got "
+                            f"{address!r}"[:300])
+        text, where = address.strip(), f"{path}: 'address' {address}"
+    scheme, sep, rest = text.partition("://")
+    if not sep:
+        raise UserError(f"{where}: expected tcp://HOST:PORT or a scheduler file")
+    if scheme.lower() not in _SCHEMES:
+        raise UserError(f"{where}: unknown scheme {scheme!r}; expected {' or '.join(s + '://' for s in _SCHEMES)}"
+                        f"HOST:PORT")
+    host, colon, port = rest.rpartition(":")
+    if not colon or not host or "/" in port:
+        raise UserError(f"{where}: no port; expected {scheme}://HOST:PORT")
+    if not port.isdigit() or not 0 < int(port) < 65536:
+        raise UserError(f"{where}: the port must be a number from 1 to 65535, got {port!r}")
+    return f"{scheme.lower()}://{host}:{int(port)}"
+
+
+def probe_scheduler(address: str, scheduler: str, timeout: float | None = None) -> None:
+    """Connect to a ``tcp://`` scheduler and read the start of its greeting (a Dask scheduler
+    speaks first: a count of frames), all within ``timeout`` (default
+    :data:`CONNECT_TIMEOUT_S`): nothing listening, no answer, or an answer in another protocol
+    (an HTTP server) is a one-line :class:`UserError`, never a wait without end."""
+    import socket
+    import struct
+    import time
+
+    if not address.startswith("tcp://"):
+        return
+    timeout = CONNECT_TIMEOUT_S if timeout is None else timeout
+    host, _, port = address[len("tcp://"):].rpartition(":")
+    host = host.strip("[]")
+    end = time.monotonic() + timeout
+    try:
+        with socket.create_connection((host, int(port)), timeout=timeout) as conn:
+            head = b""
+            while len(head) < 8:
+                conn.settimeout(max(end - time.monotonic(), 0.01))
+                block = conn.recv(8 - len(head))
+                if not block:
+                    raise UserError(f"--scheduler {scheduler}: {address} closed the connection without a "
+                                    f"word; not a Dask scheduler")
+                head += block
+    except socket.timeout:
+        raise UserError(f"--scheduler {scheduler}: no answer from {address} within {timeout:g} s "
+                        f"(is it a Dask scheduler?)") from None
+    except socket.gaierror as e:
+        raise UserError(f"--scheduler {scheduler}: cannot connect (unknown host {host!r}: {e.strerror})") from None
+    except OSError as e:
+        raise UserError(f"--scheduler {scheduler}: cannot connect ({e.strerror or e})") from None
+    frames = struct.unpack("<Q", head)[0]
+    if not 0 < frames <= 1024:
+        raise UserError(f"--scheduler {scheduler}: {address} answered in another protocol "
+                        f"({head!r}…); not a Dask scheduler")
 
 
 def _call(task: Task, results: dict):

@@ -33,6 +33,16 @@ number or a material name (``1`` for a free-standing film in air); ``--substrate
 extinction. With ``--fit-film-ior`` an offset to the film index is fitted (the given index is
 the start) and reported at the middle of the fitted range.
 
+Limits
+------
+A spectrum file is at most :data:`MAX_SPECTRUM_BYTES` bytes (its size is checked before it is
+read) and :data:`MAX_SPECTRUM_LINES` lines (counted while it is read, before it is parsed);
+values beyond :data:`~thinfilm.reconstruction.spectrum_fit.MAX_VALUE` in magnitude are refused.
+Before a fit starts its memory is estimated
+(:func:`~thinfilm.reconstruction.spectrum_fit.estimated_memory_bytes`) and a fit that needs
+more than the machine has is refused. A spectrum (less its background) without variation holds
+no thickness information and is refused, as is a background brighter than the spectrum.
+
 Errors
 ------
 Every input is checked before anything is fitted: each bad file gets one line on stderr and
@@ -101,7 +111,8 @@ def read_spectrum(path, what="spectrum") -> Spectrum:
     p = Path(path)
     from thinfilm.core.io import read_text_file
 
-    text = read_text_file(p, f"{what} file (two columns: wavelength in nm, value)")
+    text = read_text_file(p, f"{what} file (two columns: wavelength in nm, value)", max_bytes=MAX_SPECTRUM_BYTES,
+                          max_lines=MAX_SPECTRUM_LINES)
 
     rows, lines = [], []
     header_allowed = True
@@ -212,6 +223,11 @@ def parse_index(text, option="--film-ior", allow_cauchy=True):
     return as_dispersion(value)
 
 
+#: the largest spectrum file read, in bytes (its size is checked before any byte is read)
+MAX_SPECTRUM_BYTES = 16 * 2**20
+#: the most lines a spectrum file may have (counted while it is read, before it is parsed)
+MAX_SPECTRUM_LINES = 100_000
+
 #: refractive indices accepted, as in scene specs
 INDEX_RANGE = (0.01, 100.0)
 #: the thickest film searched (nm), as in scene specs
@@ -271,7 +287,41 @@ def _fitted_part(spec, lam_range, min_points):
         line = spec.lines[np.argmax(bad)]
         raise UserError(f"spectrum file {spec.path}, line {line}: the value is not a finite number "
                         f"(NaN or infinite values are refused inside the fitted range)")
+    _bounded(spec, keep)
     return spec.wavelengths_nm[keep], spec.values[keep]
+
+
+def _bounded(spec, keep):
+    """Values in the fitted range no larger than :data:`MAX_VALUE` in magnitude."""
+    from thinfilm.reconstruction.spectrum_fit import MAX_VALUE
+
+    big = keep & (np.abs(np.nan_to_num(spec.values)) > MAX_VALUE)
+    if np.any(big):
+        i = int(np.argmax(big))
+        raise UserError(f"{spec.what} file {spec.path}, line {spec.lines[i]}: the value {spec.values[i]:g} is "
+                        f"beyond {MAX_VALUE:g} in magnitude; not a measured intensity")
+
+
+def _varies(path, values, background):
+    """A spectrum (less its background) that varies, and a background darker than it."""
+    signal = values - (background if background is not None else 0.0)
+    if np.ptp(signal) <= 1e-12 * np.max(np.abs(signal)):
+        what = "less the background " if background is not None else ""
+        raise UserError(f"spectrum file {path}: its {values.size} values {what}in the fitted range show no "
+                        f"variation (all {signal[0]:g}): a spectrum without variation holds no thickness "
+                        f"information")
+    if background is not None and np.mean(signal > 0) < 0.5:
+        raise UserError(f"the background is brighter than spectrum {path} at {int(np.sum(signal <= 0))} of its "
+                        f"{signal.size} wavelengths (a background has no film reflection: it must be darker)")
+
+
+def _physical_memory():
+    import os
+
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (AttributeError, ValueError, OSError):
+        return None
 
 
 def _on_grid(aux, lam, spec_path):
@@ -291,6 +341,9 @@ def _on_grid(aux, lam, spec_path):
         line = aux.lines[seg][np.argmax(bad)]
         raise UserError(f"{what} file {aux.path}, line {line}: the value is not a finite number "
                         f"(NaN or infinite values are refused inside the fitted range)")
+    keep = np.zeros(aux.values.size, dtype=bool)
+    keep[seg] = True
+    _bounded(aux, keep)
     return np.interp(lam, aux.wavelengths_nm, aux.values)
 
 
@@ -377,6 +430,7 @@ def cli_main(args):
             if not np.all(np.asarray(n2) > 0):
                 raise UserError(f"--film-ior: the index is not positive over {path}'s fitted range "
                                 f"{lam[0]:g}-{lam[-1]:g} nm")
+            _varies(path, values, extra.get("background"))
             prepared.append({"path": path, "lam": lam, "values": values, **extra})
         except UserError as e:
             errors.append(str(e))
@@ -389,6 +443,17 @@ def cli_main(args):
     groups = {}
     for i, r in enumerate(prepared):
         groups.setdefault((r["lam"].size, r["lam"].tobytes()), []).append(i)
+    from thinfilm.reconstruction.spectrum_fit import estimated_memory_bytes
+
+    have = _physical_memory()
+    for members in groups.values():
+        first = prepared[members[0]]
+        need = estimated_memory_bytes(first["lam"], model, d_range, len(members))
+        if have and need > have:
+            print(f"thinfilm: error: spectrum file {first['path']}: fitting {first['lam'].size} samples needs about "
+                  f"{need / 2**30:.1f} GiB of memory, this machine has {have / 2**30:.1f} GiB (narrow "
+                  f"--wavelength-range or resample the spectrum)", file=sys.stderr)
+            return 2
     for members in groups.values():
         first = prepared[members[0]]
         fits = fit_spectra(first["lam"], np.stack([prepared[i]["values"] for i in members]), model,

@@ -83,16 +83,12 @@ def _one_line(error) -> str:
 
 def _read_scene_data(path: Path) -> dict:
     """The dictionary of a .toml or .json scene, checked to be a ``type = "scene"`` table."""
+    from thinfilm.core.files import parse_toml_text
     from thinfilm.core.io import parse_json_text, read_text_file
 
     text = read_text_file(path, "scene")
     if path.suffix.lower() == ".toml":
-        import tomllib
-
-        try:
-            data = tomllib.loads(text)
-        except tomllib.TOMLDecodeError as e:
-            raise UserError(f"{path}: not valid TOML ({e})") from None
+        data = parse_toml_text(text, path)
     else:
         data = parse_json_text(text, path)
     if not isinstance(data, dict):
@@ -137,6 +133,18 @@ def scene_inputs(path) -> list:
     return [path] + [path.parent / n for n in names if "$" not in n]
 
 
+def _check_scene_file(path: Path) -> None:
+    """A scene path that is a regular file, else one line naming it (a pipe or a device is
+    never opened)."""
+    import os
+
+    from thinfilm.core.files import check_regular_file
+
+    if os.path.isdir(path):
+        raise UserError(f"{path}: scene file not found")
+    check_regular_file(path, "scene file")
+
+
 def load_scene(path):
     """Load a scene file (XML, TOML or JSON) in the current variant; registers the plugin."""
     import mitsuba as mi
@@ -145,8 +153,7 @@ def load_scene(path):
 
     thinfilm.bsdf.register()
     path = Path(path)
-    if not path.is_file():
-        raise UserError(f"{path}: scene file not found")
+    _check_scene_file(path)
     suffix = path.suffix.lower()
     if suffix not in (".xml", ".toml", ".json"):
         raise UserError(f"{path}: expected a .xml, .toml or .json scene file")
@@ -249,8 +256,7 @@ def cli_main(args) -> int:
     from thinfilm.core.variants import use_variant
 
     scene = Path(args.scene)
-    if not scene.is_file():
-        raise UserError(f"{scene}: scene file not found")
+    _check_scene_file(scene)
     if scene.suffix.lower() not in (".xml", ".toml", ".json"):
         raise UserError(f"{scene}: expected a .xml, .toml or .json scene file")
     if scene.suffix.lower() != ".xml":

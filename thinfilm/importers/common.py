@@ -132,7 +132,9 @@ def file_record(path, role: str) -> dict:
     """Provenance of an input file for ``meta.json``: absolute path, role and SHA-256."""
     p = Path(path).expanduser().resolve()
     h = hashlib.sha256()
-    with open(p, "rb") as f:
+    from thinfilm.core.files import open_regular
+
+    with open_regular(p, f"{role} file") as f:
         for block in iter(lambda: f.read(1 << 20), b""):
             h.update(block)
     return {"path": str(p), "role": role, "sha256": h.hexdigest()}

@@ -58,13 +58,14 @@ class CameraImage:
 def read_image(path, what: str = "image") -> CameraImage:
     """Read a PNG or TIFF camera image (see the module docstring). ``what`` names the role
     in errors (``"image"``, ``"--dark"`` …)."""
+    from thinfilm.core.files import open_regular
+
     p = Path(path)
-    if not p.is_file():
-        raise UserError(f"{p}: {what} file not found")
-    try:
-        head = p.read_bytes()[:8]
-    except OSError as e:
-        raise UserError(f"{p}: cannot read the {what} ({e.strerror})") from None
+    with open_regular(p, f"{what} file") as f:
+        try:
+            head = f.read(8)
+        except OSError as e:
+            raise UserError(f"{p}: cannot read the {what} ({e.strerror})") from None
     if head.startswith(b"\x89PNG\r\n\x1a\n"):
         img = _read_png(p, what)
     elif head[:4] in (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+"):
@@ -137,7 +138,9 @@ def _png_chunks(raw: bytes, p: Path):
 
 
 def _read_png(p: Path, what: str) -> CameraImage:
-    raw = p.read_bytes()
+    from thinfilm.core.files import read_bytes_file
+
+    raw = read_bytes_file(p, f"{what} file")
     chunks = list(_png_chunks(raw, p))
     if not chunks or chunks[0][0] != b"IHDR" or len(chunks[0][1]) != 13:
         raise UserError(f"{p}: damaged PNG file (no IHDR chunk)")

@@ -80,10 +80,12 @@ def _envi_wavelengths(meta: dict, hdr: Path):
 
 def read_cube(path, what: str = "cube") -> _Cube:
     """Read an ENVI or TIFF cube as (H, W, B) float64 with its header wavelengths (or None)."""
+    from thinfilm.core.files import open_regular
+
     p = Path(path).expanduser()
-    if not p.is_file():
-        raise UserError(f"{p}: {what} file not found")
-    is_tiff = p.read_bytes()[:4] in (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+")
+    with open_regular(p, f"{what} file") as f:
+        head = f.read(4)
+    is_tiff = head in (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+")
     hdr = None if is_tiff else _envi_header(p)
     if hdr is not None:
         import spectral.io.envi as envi
