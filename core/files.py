@@ -21,10 +21,9 @@ from pathlib import Path
 import numpy as np
 
 from .errors import UserError
-from .exr import read_exr
 
 __all__ = ["read_text_file", "read_bytes_file", "open_regular", "path_error", "show_path", "read_toml",
-           "parse_toml_text", "parse_json_text", "special_file_kind", "check_regular_file", "read_json", "write_json", "read_mask_file", "MAX_TEXT_BYTES"]
+           "parse_toml_text", "parse_json_text", "special_file_kind", "check_regular_file", "read_json", "write_json", "MAX_TEXT_BYTES"]
 
 
 #: the largest text file (a scene spec, a CSV table, a JSON file) a reader takes, in bytes
@@ -213,43 +212,3 @@ def _non_finite(data, where=""):
 def write_json(path, data) -> None:
     """JSON with sorted keys and a trailing newline (byte-for-byte reproducible)."""
     Path(path).write_text(json.dumps(data, indent=2, sort_keys=True) + "\n")
-
-
-def read_mask_file(path, shape):
-    """Read a mask image (EXR, PNG, or ``.npy``; non-zero on the object) of the given shape."""
-    import io
-
-    p = Path(path)
-    try:
-        if not stat.S_ISREG(os.stat(p).st_mode) and not special_file_kind(os.stat(p).st_mode):
-            raise UserError(f"{show_path(p)}: mask file not found")
-    except (FileNotFoundError, NotADirectoryError):
-        raise UserError(f"{show_path(p)}: mask file not found") from None
-    except OSError as e:
-        raise path_error(p, "mask file", e) from None
-    suffix = p.suffix.lower()
-    data = None if suffix == ".exr" else read_bytes_file(p, "mask file")
-    try:
-        if suffix == ".exr":
-            ch = read_exr(p)
-            name = "mask" if "mask" in ch else sorted(ch)[0]
-            m = ch[name]
-        elif suffix == ".npy":
-            m = np.load(io.BytesIO(data))
-        else:
-            import matplotlib.image as mpimg
-
-            m = mpimg.imread(io.BytesIO(data), format=suffix.lstrip(".") or None)
-        m = np.asarray(m, dtype=np.float64)
-    except UserError:
-        raise
-    except Exception as e:
-        reason = (str(e) or type(e).__name__).splitlines()[0]
-        raise UserError(f"{p}: cannot read the mask image ({reason})") from None
-    if not np.all(np.isfinite(m)):
-        raise UserError(f"{p}: mask image holds NaN or infinite values")
-    if m.ndim == 3:
-        m = m[..., :3].max(axis=-1) if m.shape[-1] >= 3 else m[..., 0]
-    if m.shape != tuple(shape):
-        raise UserError(f"{p}: mask has shape {m.shape}, expected the captures' {tuple(shape)}")
-    return m > 0

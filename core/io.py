@@ -36,7 +36,8 @@ from .estimate import ESTIMATE_CHANNELS, ESTIMATE_FORMAT, Estimate, height_to_me
 from .evaluation_files import read_metrics, write_evaluation_files
 from .exr import (band_channel, band_channels, pol_layer, polarized_rgb_channels, read_exr, set_exr_threads,
                   write_exr)
-from .files import parse_json_text, read_json, read_mask_file, read_text_file, read_toml, write_json
+from .files import parse_json_text, read_json, read_text_file, read_toml, write_json
+from .masks import read_mask_file
 
 __all__ = [
     "FORMAT",

@@ -636,7 +636,7 @@ CASES = [
          setup=lambda c: (_spectrum(c), c.write("bg.txt", "".join(f"{w},1.0\n" for w in range(390, 712, 10))))),
     Case("fit-spectrum/more-memory-than-the-machine", fit(), "GiB of memory, this machine has",
          setup=_spectrum, patch=lambda monkeypatch, c: monkeypatch.setattr(
-             "thinfilm.fit_spectrum._physical_memory", lambda: 2**20)),
+             "thinfilm.fit_spectrum.physical_memory", lambda: 2**20)),
     Case("benchmark/scheduler-no-port", bench_at(lambda c: "tcp://localhost"), "--scheduler tcp://localhost: "),
     Case("benchmark/scheduler-unknown-scheme", bench_at(lambda c: "foo://x:1"), "--scheduler foo://x:1: "),
     Case("benchmark/scheduler-port-not-a-number", bench_at(lambda c: "tcp://127.0.0.1:http"), "--scheduler"),

@@ -315,7 +315,8 @@ def _varies(path, values, background):
                         f"{signal.size} wavelengths (a background has no film reflection: it must be darker)")
 
 
-def _physical_memory():
+def physical_memory():
+    """Bytes of physical memory of this machine (None where the system does not say)."""
     import os
 
     try:
@@ -445,7 +446,7 @@ def cli_main(args):
         groups.setdefault((r["lam"].size, r["lam"].tobytes()), []).append(i)
     from thinfilm.reconstruction.spectrum_fit import estimated_memory_bytes
 
-    have = _physical_memory()
+    have = physical_memory()
     for members in groups.values():
         first = prepared[members[0]]
         need = estimated_memory_bytes(first["lam"], model, d_range, len(members))
