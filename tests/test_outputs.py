@@ -11,7 +11,7 @@ import pytest
 
 from thinfilm.core import outputs
 from thinfilm.core.errors import UserError
-from thinfilm.core.outputs import (MARKER, atomic_output_dir, atomic_output_files, check_output_dir,
+from thinfilm.core.outputs import (MARKER, TEMP_MARKER, atomic_output_dir, atomic_output_files, check_output_dir,
                                    check_output_files, clean_stale_temporaries, open_output_dir, output_lock,
                                    read_marker)
 
@@ -105,7 +105,7 @@ def test_swap_without_renameat2_falls_back_to_two_renames(tmp_path, monkeypatch)
 def test_the_lock_admits_one_writer_and_is_removed_after(tmp_path):
     out = tmp_path / "out"
     with output_lock(out):
-        assert (tmp_path / ".out.lock").read_text().strip() == str(os.getpid())
+        assert (tmp_path / ".out.lock").read_text().split() == ["thinfilm-lock/1", str(os.getpid()), outputs._host()]
         with pytest.raises(UserError, match=f"another thinfilm command \\(process {os.getpid()}\\)"):
             with atomic_output_dir(out, command="x"):
                 pass
@@ -114,24 +114,43 @@ def test_the_lock_admits_one_writer_and_is_removed_after(tmp_path):
         pass
 
 
+def _record(folder, pid, host):
+    """The record a temporary folder of ours holds (TEMP_MARKER)."""
+    _write(folder, {TEMP_MARKER: json.dumps({"format": "thinfilm-temporary/1", "pid": pid, "host": host})})
+
+
 def test_stale_temporaries_only_ours_only_dead(tmp_path):
     host, dead = outputs._host(), _dead_pid()
     stale = tmp_path / f".out.tmp-{dead}@{host}-abcd1234"
     alive = tmp_path / f".out.tmp-{os.getpid()}@{host}-abcd1234"
     other_host = tmp_path / f".out.tmp-{dead}@elsewhere-abcd1234"
-    not_ours = tmp_path / ".out.tmp-xyz"
-    for p in (stale, alive, other_host, not_ours):
+    for p, pid, h in ((stale, dead, host), (alive, os.getpid(), host), (other_host, dead, "elsewhere")):
         _write(p, {"x.exr": "x"})
+        _record(p, pid, h)
+    # named like ours but without our record, or with a record of another process: not ours
+    unmarked = tmp_path / f".out.tmp-{dead}@{host}-abcd5678"
+    mismatched = tmp_path / f".out.tmp-{dead}@{host}-abcd9999"
+    _write(unmarked, {"thesis.tex": "mine"})
+    _write(mismatched, {"x": "x"})
+    _record(mismatched, dead + 1, host)
+    not_ours = tmp_path / ".out.tmp-xyz"
+    _write(not_ours, {"x.exr": "x"})
     stale_file = tmp_path / f".img.exr.tmp-{dead}@{host}-abcd1234.exr"
-    stale_file.write_text("x")
+    stale_file.write_text("a file cannot hold our record")
+    link = tmp_path / f".lnk.tmp-{dead}@{host}-abcd1234"
+    os.symlink(stale, link)
     removed = clean_stale_temporaries(tmp_path)
-    assert sorted(removed) == sorted([stale, stale_file])
-    assert _names(tmp_path) == sorted(p.name for p in (alive, other_host, not_ours))
+    assert removed == [stale]
+    assert _names(tmp_path) == sorted(p.name for p in (alive, other_host, not_ours, unmarked, mismatched,
+                                                      stale_file, link))
+    assert (unmarked / "thesis.tex").read_text() == "mine"
 
 
 def test_an_old_output_moved_aside_by_a_killed_swap_is_moved_back(tmp_path):
-    old = tmp_path / f".out.old-{_dead_pid()}@{outputs._host()}-abcd1234"
-    _write(old, {"meta.json": "{}"})
+    holder = tmp_path / f".out.tmp-{_dead_pid()}@{outputs._host()}-abcd1234"
+    with atomic_output_dir(holder / "out.old", command="x") as tmp:
+        _write(tmp, {"meta.json": "{}"})
+    _record(holder, int(holder.name.split("-")[1].split("@")[0]), outputs._host())
     clean_stale_temporaries(tmp_path)
     assert _names(tmp_path) == ["out"] and (tmp_path / "out" / "meta.json").is_file()
 
