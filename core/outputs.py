@@ -13,33 +13,47 @@ A command replaces an existing ``--out`` folder only if
 3. it is none of the command's inputs, lies inside none of them and contains none of them
    (``--out`` equal to the dataset, ``--out DATASET/sub``, ``--out ..`` of the dataset, the
    folder of the thickness bitmap a spec names). Paths are compared after resolving
-   symbolic links.
+   symbolic links;
+4. it is not itself a symbolic link: an output is never written through one (a link that
+   points nowhere included), nor is a folder created where a dangling link leads.
 
 Otherwise the command stops with one line (:class:`~thinfilm.core.errors.UserError`, exit
 code 2) before any work, and nothing is touched. ``render`` writes files, not a folder: it
-refuses to replace an existing file unless asked to (``--overwrite``), and never replaces
-one of its inputs.
+refuses to replace an existing file unless asked to (``--overwrite``), never replaces
+one of its inputs, and never a symbolic link or anything but a regular file.
+
+Only what this tool made is ever opened for writing, followed, truncated or removed: a file,
+link or folder of someone else's at a path this module uses (the lock, a name like a
+temporary's) stops the command with one line, and stays as it was.
 
 How an output is written
 ------------------------
-:func:`atomic_output_dir` takes a lock, checks the rule, and yields a new temporary folder
-beside ``--out`` (``.NAME.tmp-PID@HOST-XXXXXXXX``). The command does its work and writes its
-files there. When the block ends without an error the marker is written, the folder gets
-the permissions of the user's umask (not ``mkdtemp``'s 0700), the rule is checked once more,
-and the folder is swapped into place in one step (``renameat2(RENAME_EXCHANGE)`` where the
-file system has it; else two renames with SIGINT/SIGTERM held back in between); the old
-output is then deleted. On any error, on Ctrl-C and on SIGTERM (:mod:`thinfilm.core.signals`
-turns it into an exception) the temporary folder is removed, and so are the parent folders
-the call created, so a failed command leaves the file system as it found it.
+:func:`atomic_output_dir` takes a lock, checks the rule, and creates a new temporary folder
+beside ``--out`` (``.NAME.tmp-PID@HOST-XXXXXXXX``, holding the record :data:`TEMP_MARKER`),
+and yields a folder ``NAME`` inside it. The command does its work and writes its files
+there. When the block ends without an error the marker is written, the folder gets the
+permissions of the user's umask (not 0700), the rule is checked once more, and the folder is
+swapped into place in one step (``renameat2(RENAME_EXCHANGE)`` where the file system has it;
+else two renames with the signals held back in between); the old output is then deleted,
+all or nothing: every file of it is first moved into the temporary folder, and if one cannot
+be (an immutable file, a folder one may not write), every move is undone, the old output
+stays as it was, the new one is moved beside it (``NAME.new``) and the command stops with
+one line that says where it is. On any error, on Ctrl-C and on SIGTERM, SIGHUP or SIGQUIT
+(:mod:`thinfilm.core.signals` turns them into exceptions) the temporary folder is removed,
+and so are the parent folders the call created, so a failed command leaves the file system
+as it found it.
 
-- **Lock.** ``.NAME.lock`` beside ``--out``, held with ``flock`` from before the work until
+- **Lock.** ``.NAME.lock`` beside ``--out``, created new (``O_EXCL``, never through a link)
+  holding ``thinfilm-lock/1 PID HOST`` and held with ``flock`` from before the work until
   the output is in place (and removed then). A second writer to the same ``--out`` stops at
   once with one line naming the first one's process id: two writers can never both
-  succeed. A lock left by a killed process is released by the kernel and simply reused.
+  succeed. A lock file of ours left by a killed process (its process gone from this host)
+  is taken over; anything else at that path is refused, never opened for writing.
 - **Stale temporaries.** A process killed with SIGKILL cannot clean up. The next output
-  written into the same parent folder removes temporaries left there by processes that no
-  longer exist: only names of this module's pattern, only of this host, only when the
-  recorded process id is not running. (An old output that a killed process had moved aside
+  written into the same parent folder removes the temporary folders left there by processes
+  that no longer exist: only folders of this module's name pattern that hold its record,
+  only of this host, only when the recorded process is not running. A folder or file merely
+  named like one is never touched. (An old output that a killed process had moved aside
   while swapping is moved back if nothing took its place.)
 - **Errors.** A full disk, a read-only or missing parent and similar file-system failures
   become one line naming ``--out``.
@@ -740,7 +754,7 @@ def _acquire(out: Path, lock: Path, what: str) -> int:
         except FileExistsError:
             fd = None
         except OSError as e:
-            raise UserError(f"cannot create the lock file ({_reason(e)})", argument=what, value=out) from None
+            raise UserError(f"cannot create the folder ({_reason(e)})", argument=what, value=out) from None
         if fd is not None:  # new, ours: lock it before saying whose it is
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
