@@ -896,8 +896,10 @@ def atomic_output_dir(out, *, command=None, inputs=()):
                 try:
                     _replace(tmp, out, holder)
                 except _OldKept as e:
-                    raise UserError(_kept_message(e, "old output", _park(tmp, out, holder)), argument="out",
-                                    value=out) from None
+                    kept = _park(tmp, out, holder)
+                    if kept == tmp:  # it could not be moved: its folder is no temporary of ours any more
+                        holder = None
+                    raise UserError(_kept_message(e, "old output", kept), argument="out", value=out) from None
             except OSError as e:
                 _rmtree_opt(holder)
                 if _about_output(e, holder, out):

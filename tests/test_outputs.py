@@ -221,3 +221,38 @@ def test_output_files_overwrite_only_when_asked_and_never_an_input(tmp_path):
         with atomic_output_files([tmp_path / "x.exr"]) as tmp:
             raise RuntimeError("render failed")
     assert _names(tmp_path) == ["img.exr", "img.png"]
+
+
+@pytest.mark.parametrize("exchange", [True, False])
+def test_an_old_output_that_cannot_be_removed_whole_stays_and_the_new_one_is_kept_beside(tmp_path, monkeypatch,
+                                                                                       exchange):
+    out = tmp_path / "out"
+    with atomic_output_dir(out, command="x") as tmp:
+        _write(tmp, {"a/b/keep.txt": "old", "top.txt": "old"})
+    before = {p.relative_to(out).as_posix(): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    if not exchange:
+        monkeypatch.setattr(outputs, "_exchange", lambda a, b: False)
+    move = outputs._move
+
+    def immutable(src, dst):
+        if os.path.basename(src) == "keep.txt":
+            raise PermissionError(1, "Operation not permitted", src)
+        move(src, dst)
+
+    monkeypatch.setattr(outputs, "_move", immutable)
+    with pytest.raises(UserError, match="cannot remove the old output .*'a/b/keep.txt'.*kept as it was, and the "
+                                        "new output is at .*out.new"):
+        with atomic_output_dir(out, command="x") as tmp:
+            _write(tmp, {"top.txt": "new"})
+    assert {p.relative_to(out).as_posix(): p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+    assert (tmp_path / "out.new" / "top.txt").read_text() == "new"
+    assert _names(tmp_path) == ["out", "out.new"]
+
+
+def test_output_files_are_never_written_through_a_link(tmp_path):
+    (tmp_path / "thesis.txt").write_text("mine")
+    os.symlink(tmp_path / "thesis.txt", tmp_path / "img.exr")
+    with pytest.raises(UserError, match="is a symbolic link"):
+        with atomic_output_files([tmp_path / "img.exr"], overwrite=True) as tmp:
+            pass
+    assert (tmp_path / "thesis.txt").read_text() == "mine"
