@@ -13,33 +13,47 @@ A command replaces an existing ``--out`` folder only if
 3. it is none of the command's inputs, lies inside none of them and contains none of them
    (``--out`` equal to the dataset, ``--out DATASET/sub``, ``--out ..`` of the dataset, the
    folder of the thickness bitmap a spec names). Paths are compared after resolving
-   symbolic links.
+   symbolic links;
+4. it is not itself a symbolic link: an output is never written through one (a link that
+   points nowhere included), nor is a folder created where a dangling link leads.
 
 Otherwise the command stops with one line (:class:`~thinfilm.core.errors.UserError`, exit
 code 2) before any work, and nothing is touched. ``render`` writes files, not a folder: it
-refuses to replace an existing file unless asked to (``--overwrite``), and never replaces
-one of its inputs.
+refuses to replace an existing file unless asked to (``--overwrite``), never replaces
+one of its inputs, and never a symbolic link or anything but a regular file.
+
+Only what this tool made is ever opened for writing, followed, truncated or removed: a file,
+link or folder of someone else's at a path this module uses (the lock, a name like a
+temporary's) stops the command with one line, and stays as it was.
 
 How an output is written
 ------------------------
-:func:`atomic_output_dir` takes a lock, checks the rule, and yields a new temporary folder
-beside ``--out`` (``.NAME.tmp-PID@HOST-XXXXXXXX``). The command does its work and writes its
-files there. When the block ends without an error the marker is written, the folder gets
-the permissions of the user's umask (not ``mkdtemp``'s 0700), the rule is checked once more,
-and the folder is swapped into place in one step (``renameat2(RENAME_EXCHANGE)`` where the
-file system has it; else two renames with SIGINT/SIGTERM held back in between); the old
-output is then deleted. On any error, on Ctrl-C and on SIGTERM (:mod:`thinfilm.core.signals`
-turns it into an exception) the temporary folder is removed, and so are the parent folders
-the call created, so a failed command leaves the file system as it found it.
+:func:`atomic_output_dir` takes a lock, checks the rule, and creates a new temporary folder
+beside ``--out`` (``.NAME.tmp-PID@HOST-XXXXXXXX``, holding the record :data:`TEMP_MARKER`),
+and yields a folder ``NAME`` inside it. The command does its work and writes its files
+there. When the block ends without an error the marker is written, the folder gets the
+permissions of the user's umask (not 0700), the rule is checked once more, and the folder is
+swapped into place in one step (``renameat2(RENAME_EXCHANGE)`` where the file system has it;
+else two renames with the signals held back in between); the old output is then deleted,
+all or nothing: every file of it is first moved into the temporary folder, and if one cannot
+be (an immutable file, a folder one may not write), every move is undone, the old output
+stays as it was, the new one is moved beside it (``NAME.new``) and the command stops with
+one line that says where it is. On any error, on Ctrl-C and on SIGTERM, SIGHUP or SIGQUIT
+(:mod:`thinfilm.core.signals` turns them into exceptions) the temporary folder is removed,
+and so are the parent folders the call created, so a failed command leaves the file system
+as it found it.
 
-- **Lock.** ``.NAME.lock`` beside ``--out``, held with ``flock`` from before the work until
+- **Lock.** ``.NAME.lock`` beside ``--out``, created new (``O_EXCL``, never through a link)
+  holding ``thinfilm-lock/1 PID HOST`` and held with ``flock`` from before the work until
   the output is in place (and removed then). A second writer to the same ``--out`` stops at
   once with one line naming the first one's process id: two writers can never both
-  succeed. A lock left by a killed process is released by the kernel and simply reused.
+  succeed. A lock file of ours left by a killed process (its process gone from this host)
+  is taken over; anything else at that path is refused, never opened for writing.
 - **Stale temporaries.** A process killed with SIGKILL cannot clean up. The next output
-  written into the same parent folder removes temporaries left there by processes that no
-  longer exist: only names of this module's pattern, only of this host, only when the
-  recorded process id is not running. (An old output that a killed process had moved aside
+  written into the same parent folder removes the temporary folders left there by processes
+  that no longer exist: only folders of this module's name pattern that hold its record,
+  only of this host, only when the recorded process is not running. A folder or file merely
+  named like one is never touched. (An old output that a killed process had moved aside
   while swapping is moved back if nothing took its place.)
 - **Errors.** A full disk, a read-only or missing parent and similar file-system failures
   become one line naming ``--out``.
@@ -102,6 +116,7 @@ import re
 import secrets
 import shutil
 import socket
+import stat
 import sys
 from pathlib import Path
 
@@ -111,6 +126,7 @@ from .errors import UserError
 __all__ = [
     "MARKER",
     "MARKER_FORMAT",
+    "TEMP_MARKER",
     "check_output_dir",
     "atomic_output_dir",
     "open_output_dir",
@@ -120,13 +136,19 @@ __all__ = [
     "output_lock",
     "read_marker",
     "clean_stale_temporaries",
-    "host_tag",
-    "exchange_paths",
 ]
 
 #: The file that marks a folder as an output of this tool.
 MARKER = ".thinfilm-output"
 MARKER_FORMAT = "thinfilm-output/1"
+#: The file inside each temporary folder that records the process that made it.
+TEMP_MARKER = ".thinfilm-temporary"
+TEMP_FORMAT = "thinfilm-temporary/1"
+#: The first word of a lock file's content (then the process id and the host).
+LOCK_FORMAT = "thinfilm-lock/1"
+
+_NOFOLLOW = getattr(os, "O_NOFOLLOW", 0)
+_CLOEXEC = getattr(os, "O_CLOEXEC", 0)
 
 _TEMP_RE = re.compile(r"^\.(?P<name>.+)\.(?P<kind>tmp|old|stage)-(?P<pid>\d+)@(?P<host>[A-Za-z0-9-]{1,32})-"
                       r"(?P<rand>[A-Za-z0-9_]{8})(?P<ext>\.[A-Za-z0-9]{1,8})?$")
@@ -167,6 +189,35 @@ def _resolve(path) -> Path:
         raise UserError(f"cannot resolve the path ({e})", argument="out", value=path) from None
 
 
+def _lexical(path, what: str = "out") -> Path:
+    """``path`` made absolute with the links of its parent folders resolved, but not a link at
+    its own name: the path a command writes at. A parent that is a link pointing nowhere
+    is refused (it would be followed to create folders somewhere else)."""
+    raw = Path(os.path.abspath(os.path.expanduser(os.fspath(path))))
+    if raw.parent == raw:
+        return raw
+    up = raw.parent
+    while not os.path.lexists(up) and up.parent != up:
+        up = up.parent
+    if os.path.islink(up) and not os.path.exists(up):
+        raise UserError(f"'{up}' is a symbolic link that points nowhere; refusing to follow it",
+                        argument=what, value=path)
+    try:
+        return raw.parent.resolve() / raw.name
+    except (RuntimeError, OSError) as e:  # a loop of symbolic links
+        raise UserError(f"cannot resolve the path ({e})", argument=what, value=path) from None
+
+
+def _refuse_link(path: Path, what: str = "out") -> None:
+    """Stop when ``path`` itself is a symbolic link: an output is never written through one."""
+    if os.path.islink(path):
+        if not os.path.exists(path):
+            raise UserError(f"is a symbolic link that points nowhere; refusing to follow it", argument=what,
+                            value=path)
+        raise UserError(f"is a symbolic link (to {os.readlink(path)}); refusing to write through it (give "
+                        f"the path it points to, or another one)", argument=what, value=path)
+
+
 def _reason(e: OSError) -> str:
     return e.strerror or str(e) or type(e).__name__
 
@@ -197,9 +248,81 @@ def _tree(root: Path) -> set:
     return out
 
 
-def _is_stale_temporary(path: Path) -> bool:
+def _new_file(path, data: bytes, mode: int = 0o600) -> None:
+    """Create file ``path`` (it must not exist, and a link there is never followed) holding ``data``."""
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | _NOFOLLOW | _CLOEXEC, mode)
+    try:
+        view = memoryview(data)
+        while view:
+            view = view[os.write(fd, view):]
+    finally:
+        os.close(fd)
+
+
+def _read_own_file(path, limit: int = 4096) -> bytes | None:
+    """The first bytes of regular file ``path``, read without following a link there; None
+    when it is missing, a link or anything but a regular file."""
+    try:
+        fd = os.open(path, os.O_RDONLY | _NOFOLLOW | _CLOEXEC | getattr(os, "O_NONBLOCK", 0))
+    except OSError:
+        return None
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            return None
+        return os.read(fd, limit)
+    except OSError:
+        return None
+    finally:
+        os.close(fd)
+
+
+def _temp_record(pid: int | None = None, host: str | None = None) -> bytes:
+    return (json.dumps({"format": TEMP_FORMAT, "pid": int(pid or os.getpid()), "host": host or host_tag()},
+                       sort_keys=True) + "\n").encode("ascii")
+
+
+def _make_temporary(parent: Path, name: str, kind: str = "tmp") -> Path:
+    """Create a new temporary folder ``.NAME.KIND-PID@HOST-XXXXXXXX`` in ``parent``, holding
+    the file :data:`TEMP_MARKER` that records this process: what makes it ours to remove
+    later. Signals are held back meanwhile, so it never exists without its record."""
+    with signals.blocked():
+        path = parent / _temp_name(name, kind)
+        os.mkdir(path, 0o700)
+        try:
+            _new_file(path / TEMP_MARKER, _temp_record())
+        except BaseException:
+            shutil.rmtree(path, ignore_errors=True)
+            raise
+    return path
+
+
+def _temporary_owner(path: Path):
+    """``(pid, host)`` that the record of temporary folder ``path`` names, or None when
+    ``path`` is not a folder (a link is not) holding a valid record that agrees with its name."""
     m = _TEMP_RE.match(path.name)
-    return bool(m) and m["host"] == host_tag() and not _pid_alive(int(m["pid"]))
+    if not m:
+        return None
+    try:
+        if not stat.S_ISDIR(os.lstat(path).st_mode):
+            return None
+    except OSError:
+        return None
+    data = _read_own_file(path / TEMP_MARKER)
+    try:
+        rec = json.loads(data.decode("ascii")) if data else None
+    except (UnicodeDecodeError, ValueError):
+        return None
+    if (not isinstance(rec, dict) or rec.get("format") != TEMP_FORMAT or not isinstance(rec.get("pid"), int)
+            or rec.get("pid") <= 0 or rec.get("host") != m["host"] or rec["pid"] != int(m["pid"])):
+        return None
+    return rec["pid"], rec["host"]
+
+
+def _is_stale_temporary(path: Path) -> bool:
+    """A folder of this module's pattern that holds our record, of this host, whose process
+    is gone. Anything else named like one (a person's folder, a file) is not ours."""
+    owner = _temporary_owner(path)
+    return owner is not None and owner[1] == host_tag() and not _pid_alive(owner[0])
 
 
 def _in_stale_temporary(root: Path, rel: str) -> bool:
@@ -275,6 +398,7 @@ def _about_output(e: OSError, *places) -> bool:
     a file inside the temporary folder) rather than an input's."""
     if e.errno in (errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EFBIG):
         return True
+    places = [q for q in places if q is not None]
     for name in (e.filename, getattr(e, "filename2", None)):
         if name is None:
             continue
@@ -310,11 +434,90 @@ def exchange_paths(a: Path, b: Path) -> bool:
     raise OSError(err, os.strerror(err), str(b))
 
 
-def _swap_into_place(new: Path, target: Path) -> None:
-    """Put folder ``new`` at ``target`` (replacing what is there) and delete the old one.
+def _rename_noreplace(src: Path, dst: Path) -> None:
+    """Rename ``src`` to ``dst`` only if nothing is at ``dst`` (``renameat2(RENAME_NOREPLACE)``
+    where the system has it)."""
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        try:
+            fn = ctypes.CDLL(None, use_errno=True).renameat2
+        except (OSError, AttributeError):
+            fn = None
+        if fn is not None:
+            fn.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint]
+            fn.restype = ctypes.c_int
+            if fn(-100, os.fsencode(src), -100, os.fsencode(dst), 1) == 0:
+                return
+            err = ctypes.get_errno()
+            if err not in (errno.ENOSYS, errno.EINVAL, errno.ENOTSUP, errno.EOPNOTSUPP):
+                raise OSError(err, os.strerror(err), str(dst))
+    if os.path.lexists(dst):
+        raise FileExistsError(errno.EEXIST, os.strerror(errno.EEXIST), str(dst))
+    os.rename(src, dst)
+
+
+class _OldKept(OSError):
+    """The old folder could not be removed whole; it was put back as it was."""
+
+    def __init__(self, error: OSError, root: Path):
+        super().__init__(error.errno, error.strerror or str(error), error.filename)
+        self.error, self.root = error, root
+
+    def where(self) -> str:
+        name = self.error.filename
+        if name is None:
+            return ""
+        try:
+            return Path(os.fspath(name)).relative_to(self.root).as_posix()
+        except ValueError:
+            return ""
+
+
+def move_entry(src, dst) -> None:
+    """One step of removing an old folder: move ``src`` into the folder being emptied."""
+    os.rename(src, dst)
+
+
+def _raise(error):
+    raise error
+
+
+def _dismantle(root: Path, trash: Path) -> None:
+    """Delete folder tree ``root`` (a real folder, not a link), all or nothing: first every file
+    and folder in it is moved, deepest first, into the new folder ``trash`` (a move fails exactly
+    where a deletion would: an immutable file, a folder one may not write); if one fails, every
+    move is undone, so ``root`` is as it was, and :class:`_OldKept` is raised. Then ``trash``,
+    which holds only what could be moved, is deleted."""
+    os.mkdir(trash, 0o700)
+    moved = []
+    try:
+        for dirpath, dirnames, filenames in os.walk(root, topdown=False, onerror=_raise):
+            for name in filenames + dirnames:
+                src = os.path.join(dirpath, name)
+                dst = os.path.join(trash, str(len(moved)))
+                move_entry(src, dst)
+                moved.append((src, dst))
+    except OSError as e:
+        for src, dst in reversed(moved):
+            with contextlib.suppress(OSError):
+                os.rename(dst, src)
+        with contextlib.suppress(OSError):
+            os.rmdir(trash)
+        raise _OldKept(e, root) from None
+    shutil.rmtree(trash, ignore_errors=True)
+    with contextlib.suppress(OSError):
+        os.rmdir(root)
+
+
+def _replace(new: Path, target: Path, holder: Path) -> None:
+    """Put folder ``new`` at ``target`` and delete what was there, all or nothing. ``holder``
+    is a temporary folder of ours beside ``target`` (:func:`_make_temporary`) where the old
+    folder is taken apart. When the old folder cannot be removed whole it is put back at
+    ``target`` as it was, ``new`` is back at its own path, and :class:`_OldKept` is raised.
     Signals are held back meanwhile."""
     with signals.blocked():
-        if not target.exists():
+        if not os.path.lexists(target):
             os.rename(new, target)
             return
         if not any(target.iterdir()):
@@ -324,16 +527,52 @@ def _swap_into_place(new: Path, target: Path) -> None:
             except OSError:
                 pass
         if exchange_paths(new, target):
-            _rmtree(new)  # it now holds the old output
-            return
-        old = target.with_name(_temp_name(target.name, "old"))
-        os.rename(target, old)
+            old = new  # it now holds the old folder
+        else:
+            old = holder / f"{target.name}.old"  # moved back by the stale clean-up if we die now
+            os.rename(target, old)
+            try:
+                os.rename(new, target)
+            except OSError:
+                os.rename(old, target)
+                raise
         try:
-            os.rename(new, target)
-        except OSError:
-            os.rename(old, target)
+            _dismantle(old, holder / f"{target.name}.removed")
+        except _OldKept:
+            if old == new:
+                exchange_paths(new, target)
+            else:
+                os.rename(target, new)
+                os.rename(old, target)
             raise
-        _rmtree(old)
+
+
+def _park(new: Path, out: Path, holder: Path) -> Path:
+    """Move a finished output that could not take the place of ``out`` to a free name beside
+    it (``NAME.new``, ``NAME.new-2`` …); where that fails it stays in ``holder``, whose record
+    is dropped so that no clean-up removes it. Returns where it is."""
+    for i in range(1, 100):
+        dest = out.with_name(f"{out.name}.new" + (f"-{i}" if i > 1 else ""))
+        if os.path.lexists(dest):
+            continue
+        try:
+            _rename_noreplace(new, dest)
+            return dest
+        except FileExistsError:
+            continue
+        except OSError:
+            break
+    with contextlib.suppress(OSError):
+        os.unlink(holder / TEMP_MARKER)
+    return new
+
+
+def _kept_message(e: _OldKept, what: str, kept: Path | None) -> str:
+    where = e.where()
+    text = f"cannot remove the {what} ({_reason(e.error)}{f': {where!r}' if where else ''}); it is kept as it was"
+    if kept is not None:
+        text += f", and the new output is at {kept}"
+    return text
 
 
 # -- markers ----------------------------------------------------------------------------------------
@@ -356,16 +595,20 @@ def read_marker(folder) -> dict | None:
 
 
 def _write_marker(folder: Path, command, entries) -> None:
-    """Write the marker atomically (a temporary file renamed over it). Deterministic: the
+    """Write the marker atomically (a new file in a temporary folder, renamed over it). Deterministic: the
     same output gives the same bytes."""
     from thinfilm import __version__
 
     data = {"format": MARKER_FORMAT, "tool": "thinfilm", "version": __version__,
             "command": command, "entries": sorted(entries)}
-    tmp = folder / _temp_name(MARKER)
-    tmp.write_text(json.dumps(data, indent=2, sort_keys=True) + "\n", encoding="utf-8")
-    os.chmod(tmp, _file_mode())
-    os.replace(tmp, folder / MARKER)
+    holder = _make_temporary(folder, MARKER)
+    try:
+        tmp = holder / MARKER
+        _new_file(tmp, (json.dumps(data, indent=2, sort_keys=True) + "\n").encode("utf-8"))
+        os.chmod(tmp, _file_mode())
+        os.replace(tmp, folder / MARKER)
+    finally:
+        _rmtree(holder)
 
 
 # -- the rule -------------------------------------------------------------------------------------
@@ -412,117 +655,195 @@ def check_output_dir(out, *, command=None, inputs=()) -> Path:
     Returns
     -------
     Path
-        ``out``, absolute, symbolic links resolved.
+        ``out``, absolute, the symbolic links of its parent folders resolved (``out`` itself
+        may not be one: an output is never written through a link).
 
     Raises
     ------
     UserError
         One line naming ``--out``.
     """
-    out = _resolve(out)
-    if out.parent == out:
-        raise UserError(f"cannot write an output folder at the file-system root", argument="out", value=out)
-    problem = _overlap(out, inputs)
+    full = _resolve(out)
+    path = _lexical(out)
+    if full.parent == full or path.parent == path:
+        raise UserError(f"cannot write an output folder at the file-system root", argument="out", value=full)
+    problem = _overlap(full, inputs)
     if problem:
-        raise UserError(f"{problem}", argument="out", value=out)
-    if out.exists():
-        if not out.is_dir():
-            raise UserError(f"exists and is not a folder", argument="out", value=out)
+        raise UserError(f"{problem}", argument="out", value=full)
+    _refuse_link(path)
+    if path.exists():
+        if not path.is_dir():
+            raise UserError(f"exists and is not a folder", argument="out", value=path)
         try:
-            _check_ours(out, command)
+            _check_ours(path, command)
         except PermissionError as e:
-            raise UserError(f"cannot read the existing folder ({_reason(e)})", argument="out", value=out) from None
-    elif out.is_symlink():
-        raise UserError(f"is a symbolic link that points nowhere", argument="out", value=out)
-    return out
+            raise UserError(f"cannot read the existing folder ({_reason(e)})", argument="out", value=path) from None
+    return path
 
 
 # -- the lock -------------------------------------------------------------------------------------
+
+def _lock_path(out: Path) -> Path:
+    return out.parent / f".{out.name}.lock"
+
 
 @contextlib.contextmanager
 def output_lock(out, what: str = "out"):
     """Hold the exclusive lock of output ``out`` (``.NAME.lock`` beside it; its parent must
     exist). A second holder gets a :class:`UserError` at once; the lock file is removed
-    when released."""
+    when released.
+
+    The lock file is created new (never through a link, never over a file already there) and
+    holds ``thinfilm-lock/1 PID HOST``; the holder keeps it ``flock``-ed. A lock file of ours
+    whose process is gone from this host (killed) is taken over; anything else at that path
+    (a person's file, a link, a folder) is left alone and the command stops with one line."""
     out = Path(out)
+    lock = _lock_path(out)
     fd = None
     try:
         with signals.blocked():  # no interrupt between taking the lock and owning it here
-            fd = _acquire(out, what)
-        yield out.parent / f".{out.name}.lock"
+            fd = _acquire(out, lock, what)
+        yield lock
     finally:
         if fd is not None:
             with signals.blocked():
                 with contextlib.suppress(OSError):
-                    os.unlink(out.parent / f".{out.name}.lock")
+                    if os.path.samestat(os.fstat(fd), os.lstat(lock)):
+                        os.unlink(lock)
                 os.close(fd)
 
 
-def _acquire(out: Path, what: str) -> int:
-    import fcntl
+def _parse_lock(data: bytes | None):
+    """``(pid, host)`` of a lock file's content, or None when it is not one of ours."""
+    try:
+        parts = data.decode("ascii").split() if data else []
+    except UnicodeDecodeError:
+        return None
+    if (len(parts) == 3 and parts[0] == LOCK_FORMAT and parts[1].isdigit() and int(parts[1]) > 0
+            and re.fullmatch(r"[A-Za-z0-9-]{1,32}", parts[2])):
+        return int(parts[1]), parts[2]
+    return None
 
-    lock = out.parent / f".{out.name}.lock"
-    while True:
+
+def _kind(mode: int) -> str:
+    if stat.S_ISLNK(mode):
+        return "symbolic link"
+    if stat.S_ISDIR(mode):
+        return "folder"
+    if stat.S_ISREG(mode):
+        return "file"
+    return "special file"
+
+
+def _acquire(out: Path, lock: Path, what: str) -> int:
+    import fcntl
+    import time
+
+    def foreign(kind):
+        return UserError(f"'{lock.name}' beside it is a {kind} that thinfilm did not make, at the path "
+                         f"where it keeps the lock of this output; refusing to touch it (move it away, or "
+                         f"choose another output folder)", argument=what, value=out)
+
+    def busy(owner=None):
+        who = f" (process {owner[0]}{'' if owner[1] == host_tag() else ' on ' + owner[1]})" if owner else ""
+        return UserError(f"another thinfilm command{who} is writing it; wait for it to finish or choose "
+                         f"another output folder", argument=what, value=out)
+
+    empty_since = None
+    for _ in range(10000):
         try:
-            fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o666)
+            fd = os.open(lock, os.O_RDWR | os.O_CREAT | os.O_EXCL | _NOFOLLOW | _CLOEXEC, 0o666)
+        except FileExistsError:
+            fd = None
         except OSError as e:
             raise UserError(f"cannot create the folder ({_reason(e)})", argument=what, value=out) from None
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError as e:
-            owner = ""
-            with contextlib.suppress(OSError, ValueError, IndexError):
-                owner = os.pread(fd, 64, 0).decode("ascii", "replace").split()[0]
-            os.close(fd)
-            if e.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
-                who = f" (process {owner})" if owner else ""
-                raise UserError(f"another thinfilm command{who} is writing it; wait for it "
-                                f"to finish or choose another output folder", argument=what, value=out) from None
-            raise UserError(f"cannot lock the output ({_reason(e)})", argument=what, value=out) from None
-        # The file may have been removed by the previous holder after we opened it: then
-        # our lock is on a dead inode; start again.
-        try:
-            same = os.path.samestat(os.fstat(fd), os.stat(lock))
-        except FileNotFoundError:
-            same = False
-        if same:
+        if fd is not None:  # new, ours: lock it before saying whose it is
             try:
-                os.ftruncate(fd, 0)
-                os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
-            except OSError:
-                pass
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                os.write(fd, f"{LOCK_FORMAT} {os.getpid()} {host_tag()}\n".encode("ascii"))
+            except OSError as e:
+                with contextlib.suppress(OSError):
+                    os.unlink(lock)
+                os.close(fd)
+                raise UserError(f"cannot write the lock file ({_reason(e)})", argument=what, value=out) from None
             return fd
-        os.close(fd)
+        # Something is there: read it without following a link, never write it.
+        try:
+            st = os.lstat(lock)
+        except FileNotFoundError:
+            continue
+        except OSError as e:
+            raise UserError(f"cannot read the lock file ({_reason(e)})", argument=what, value=out) from None
+        if not stat.S_ISREG(st.st_mode):
+            raise foreign(_kind(st.st_mode))
+        try:
+            rfd = os.open(lock, os.O_RDONLY | _NOFOLLOW | _CLOEXEC | getattr(os, "O_NONBLOCK", 0))
+        except FileNotFoundError:
+            continue
+        except OSError as e:
+            if e.errno == errno.ELOOP:
+                raise foreign("symbolic link") from None
+            raise UserError(f"cannot read the lock file ({_reason(e)})", argument=what, value=out) from None
+        try:
+            fst = os.fstat(rfd)
+            if not stat.S_ISREG(fst.st_mode):
+                raise foreign(_kind(fst.st_mode))
+            data = os.pread(rfd, 256, 0)
+            owner = _parse_lock(data)
+            try:
+                fcntl.flock(rfd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError as e:
+                if e.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+                    raise busy(owner) from None
+                raise UserError(f"cannot lock the output ({_reason(e)})", argument=what, value=out) from None
+            if owner is None:
+                if data or fst.st_size:
+                    raise foreign("file")
+                # empty: another command between creating it and writing it, or not ours
+                empty_since = empty_since or time.monotonic()
+                if time.monotonic() - empty_since > 2.0:
+                    raise foreign("file")
+                time.sleep(0.01)
+                continue
+            if owner[1] != host_tag() or _pid_alive(owner[0]):
+                raise busy(owner)
+            # ours, and its process is gone (killed): take it over
+            with contextlib.suppress(OSError):
+                if os.path.samestat(fst, os.lstat(lock)):
+                    os.unlink(lock)
+        finally:
+            os.close(rfd)
+    raise UserError("cannot take the lock (it keeps changing)", argument=what, value=out)
 
 
 # -- stale temporaries ---------------------------------------------------------------------------
 
-def clean_stale_temporaries(parent) -> list:
-    """Remove what killed processes left in folder ``parent``: temporaries of this module's
-    name pattern, of this host, whose process id is not running. An old output moved aside
-    by such a process is moved back when nothing took its place. Returns the paths
+def clean_stale_temporaries(parent, keep=()) -> list:
+    """Remove what killed processes left in folder ``parent``: temporary folders of this
+    module's name pattern that hold our record (:data:`TEMP_MARKER`), of this host, whose
+    process is not running. Anything else named like one (a person's folder or file) is
+    never touched, nor are the paths in ``keep``. An old output that such a process had moved
+    aside while swapping is moved back when nothing took its place. Returns the paths
     removed or restored."""
     parent = Path(parent)
+    keep = {Path(k) for k in keep}
     done = []
     try:
         children = list(parent.iterdir())
     except OSError:
         return done
     for p in children:
-        m = _TEMP_RE.match(p.name)
-        if not m or m["host"] != host_tag() or _pid_alive(int(m["pid"])):
+        if p in keep or not _is_stale_temporary(p):
             continue
-        if p.is_symlink() or not (p.is_dir() or p.is_file()):
-            continue
-        if m["kind"] == "old":
-            target = parent / m["name"]
-            if not target.exists() and not target.is_symlink():
-                with contextlib.suppress(OSError):
-                    os.rename(p, target)
-                    done.append(target)
-                    continue
-        _rmtree(p)
-        if not p.exists():
+        name = _TEMP_RE.match(p.name)["name"]
+        target, aside = parent / name, p / f"{name}.old"
+        if (not os.path.lexists(target) and os.path.isdir(aside) and not os.path.islink(aside)
+                and read_marker(aside) is not None):
+            with contextlib.suppress(OSError):
+                _rename_noreplace(aside, target)
+                done.append(target)
+        shutil.rmtree(p, ignore_errors=True)
+        if not os.path.lexists(p):
             done.append(p)
     return done
 
@@ -559,28 +880,45 @@ def atomic_output_dir(out, *, command=None, inputs=()):
     created = []
     try:
         with _locked(out, command, inputs, created):
-            tmp = out.parent / _temp_name(out.name)
+            holder = None
             try:
                 try:
-                    tmp.mkdir(mode=0o700)
+                    holder = _make_temporary(out.parent, out.name)
+                    tmp = holder / out.name
+                    os.mkdir(tmp, 0o700)
                 except OSError as e:
                     raise UserError(f"cannot create the folder ({_reason(e)})", argument="out", value=out) from None
                 yield tmp
                 _write_marker(tmp, command, _tree(tmp))
+                stage = _TEMP_RE.match(out.name)
+                if stage and stage["kind"] == "stage":  # a part for another process to adopt
+                    _new_file(tmp / TEMP_MARKER, _temp_record(int(stage["pid"]), stage["host"]))
                 os.chmod(tmp, _dir_mode())
                 check_output_dir(out, command=command, inputs=inputs)  # nothing changed meanwhile
-                _swap_into_place(tmp, out)
+                try:
+                    _replace(tmp, out, holder)
+                except _OldKept as e:
+                    kept = _park(tmp, out, holder)
+                    if kept == tmp:  # it could not be moved: its folder is no temporary of ours any more
+                        holder = None
+                    raise UserError(_kept_message(e, "old output", kept), argument="out", value=out) from None
             except OSError as e:
-                _rmtree(tmp)
-                if _about_output(e, tmp, out):
+                _rmtree_opt(holder)
+                if _about_output(e, holder, out):
                     raise UserError(f"cannot write the output ({_reason(e)})", argument="out", value=out) from None
                 raise
             except BaseException:
-                _rmtree(tmp)
+                _rmtree_opt(holder)
                 raise
+            _rmtree_opt(holder)
     except BaseException:
         _remove_created(created)
         raise
+
+
+def _rmtree_opt(path) -> None:
+    if path is not None:
+        _rmtree(path)
 
 
 class OutputFolder:
@@ -609,14 +947,14 @@ class OutputFolder:
         target = self.path / rel
         return target.exists() and (rel in self._entries or rel + "/" in self._entries)
 
-    def _prepare_parent(self, rel: str) -> Path:
+    def _prepare_parent(self, rel: str, keep=()) -> Path:
         target = self.path / rel
         folders = {p.as_posix() + "/" for p in Path(rel).parents if p.parts}
         if not folders <= self._entries:
             self._entries |= folders
             _write_marker(self.path, self.command, self._entries)
         target.parent.mkdir(parents=True, exist_ok=True)
-        clean_stale_temporaries(target.parent)
+        clean_stale_temporaries(target.parent, keep=keep)
         if target.exists() or target.is_symlink():
             inside = {rel + "/"} | {f"{rel}/{e}" for e in _tree(target)} if target.is_dir() else {rel}
             foreign = sorted(e for e in inside if e not in self._entries)
@@ -634,22 +972,29 @@ class OutputFolder:
             target = self._prepare_parent(rel)
         except OSError as e:
             raise UserError(f"cannot write the output ({_reason(e)})", argument="out", value=self.path) from None
-        tmp = target.parent / _temp_name(target.name)
+        holder = None
         try:
-            tmp.mkdir(mode=0o700)
+            holder = _make_temporary(target.parent, target.name)
+            tmp = holder / target.name
+            os.mkdir(tmp, 0o700)
             yield tmp
             os.chmod(tmp, _dir_mode())
             self._entries |= {rel + "/"} | {f"{rel}/{e}" for e in _tree(tmp)}
             _write_marker(self.path, self.command, self._entries)
-            _swap_into_place(tmp, target)
+            try:
+                _replace(tmp, target, holder)
+            except _OldKept as e:
+                raise UserError(_kept_message(e, f"old copy of '{rel}'", None), argument="out",
+                                value=self.path) from None
         except OSError as e:
-            _rmtree(tmp)
-            if _about_output(e, tmp, self.path):
+            _rmtree_opt(holder)
+            if _about_output(e, holder, self.path):
                 raise UserError(f"cannot write the output ({_reason(e)})", argument="out", value=self.path) from None
             raise
         except BaseException:
-            _rmtree(tmp)
+            _rmtree_opt(holder)
             raise
+        _rmtree_opt(holder)
 
     def adopt(self, rel, staged) -> Path:
         """Move folder ``staged`` into place as part ``rel`` in one step, the marker listing
@@ -658,15 +1003,25 @@ class OutputFolder:
         the stale-temporary cleanup removes once its process is gone."""
         rel = self._rel(rel)
         staged = Path(staged)
+        holder = None
         try:
-            target = self._prepare_parent(rel)
+            target = self._prepare_parent(rel, keep=(staged,))
+            if _temporary_owner(staged) is not None:  # its record: it becomes a part of ours now
+                os.unlink(staged / TEMP_MARKER)
+            holder = _make_temporary(target.parent, target.name)
             os.chmod(staged, _dir_mode())
             inside = _tree(staged) | ({MARKER} if (staged / MARKER).is_file() else set())  # its own marker too
             self._entries |= {rel + "/"} | {f"{rel}/{e}" for e in inside}
             _write_marker(self.path, self.command, self._entries)
-            _swap_into_place(staged, target)
+            try:
+                _replace(staged, target, holder)
+            except _OldKept as e:
+                raise UserError(_kept_message(e, f"old copy of '{rel}'", None), argument="out",
+                                value=self.path) from None
         except OSError as e:
             raise UserError(f"cannot write the output ({_reason(e)})", argument="out", value=self.path) from None
+        finally:
+            _rmtree_opt(holder)
         return target
 
     def write_bytes(self, rel, data: bytes) -> Path:
@@ -674,17 +1029,17 @@ class OutputFolder:
         rel = self._rel(rel)
         try:
             target = self._prepare_parent(rel)
-            tmp = target.parent / _temp_name(target.name)
+            holder = _make_temporary(target.parent, target.name)
             try:
-                tmp.write_bytes(data)
+                tmp = holder / target.name
+                _new_file(tmp, data)
                 os.chmod(tmp, _file_mode())
                 self._entries.add(rel)
                 _write_marker(self.path, self.command, self._entries)
-                os.replace(tmp, target)
-            except BaseException:
-                with contextlib.suppress(OSError):
-                    tmp.unlink()
-                raise
+                with signals.blocked():
+                    os.replace(tmp, target)
+            finally:
+                _rmtree(holder)
         except OSError as e:
             raise UserError(f"cannot write the output ({_reason(e)})", argument="out", value=self.path) from None
         return target
@@ -696,9 +1051,10 @@ class OutputFolder:
 
 def staging_path(target) -> Path:
     """A fresh temporary path beside ``target`` (nothing is created), named in this module's
-    pattern: another process writes a part there (e.g. ``atomic_output_dir(staging_path(t))``)
-    for :meth:`OutputFolder.adopt` to move into place; if that process dies first, the
-    stale-temporary cleanup removes it."""
+    pattern after the calling process: another process writes a part there (e.g.
+    ``atomic_output_dir(staging_path(t))``, which leaves the record of a temporary folder
+    in it, naming the calling process) for :meth:`OutputFolder.adopt` to move into place;
+    if the calling process dies first, the stale-temporary cleanup removes it."""
     target = Path(target)
     return target.parent / _temp_name(target.name, kind="stage")
 
@@ -739,18 +1095,24 @@ def open_output_dir(out, *, command=None, inputs=()):
 # -- files ----------------------------------------------------------------------------------------
 
 def check_output_files(paths, *, overwrite=False, inputs=(), what="out") -> list:
-    """Check that files ``paths`` may be written: each absent, or an existing file and
-    ``overwrite`` given; none of them an input. Returns the resolved paths."""
+    """Check that files ``paths`` may be written: each absent, or an existing regular file
+    and ``overwrite`` given; none of them an input, and none a symbolic link (an output is
+    never written through one, ``overwrite`` or not). Returns the absolute paths, the links
+    of their parent folders resolved."""
     out = []
     for p in paths:
-        r = _resolve(p)
-        problem = _overlap(r, inputs)
+        r = _lexical(p, what)
+        problem = _overlap(_resolve(p), inputs)
         if problem:
             raise UserError(f"{problem}", argument=what, value=r)
+        _refuse_link(r, what)
         if r.is_dir():
             raise UserError(f"is a folder, expected a file path", argument=what, value=r)
-        if (r.exists() or r.is_symlink()) and not overwrite:
-            raise UserError(f"file exists; pass --overwrite to replace it", argument=what, value=r)
+        if os.path.lexists(r):
+            if not overwrite:
+                raise UserError(f"file exists; pass --overwrite to replace it", argument=what, value=r)
+            if not r.is_file():
+                raise UserError(f"is not a regular file; refusing to replace it", argument=what, value=r)
         out.append(r)
     if len(set(out)) != len(out):
         raise UserError(f"two outputs have the same path {out}", argument=what)
@@ -759,8 +1121,9 @@ def check_output_files(paths, *, overwrite=False, inputs=(), what="out") -> list
 
 @contextlib.contextmanager
 def atomic_output_files(paths, *, overwrite=False, inputs=(), what="out"):
-    """Yield ``{path: temporary path}`` beside each of ``paths`` (same extension, so writers
-    that go by the extension work); when the block succeeds, rename them all into place.
+    """Yield ``{path: temporary path}`` for each of ``paths``, the temporary one of the same
+    name in a temporary folder beside it (so writers that go by the extension work); when
+    the block succeeds, rename them all into place.
 
     The lock is the first path's; the rule is :func:`check_output_files`. On any error the
     temporaries, the lock and the parent folders this call created are removed.
@@ -777,27 +1140,37 @@ def atomic_output_files(paths, *, overwrite=False, inputs=(), what="out"):
             for parent in {t.parent for t in targets}:
                 clean_stale_temporaries(parent)
             check_output_files(targets, overwrite=overwrite, inputs=inputs, what=what)
-            tmps = {t: t.parent / _temp_name(t.name, ext=t.suffix) for t in targets}
+            holders = {}
             try:
+                try:
+                    for t in targets:
+                        if t.parent not in holders:
+                            holders[t.parent] = _make_temporary(t.parent, t.name)
+                except OSError as e:
+                    raise UserError(f"cannot create the folder ({_reason(e)})", argument=what,
+                                    value=targets[0]) from None
+                tmps = {t: holders[t.parent] / t.name for t in targets}
                 yield dict(tmps)
                 for t, tmp in tmps.items():
-                    if not tmp.is_file():
+                    if not (tmp.is_file() and not tmp.is_symlink()):
                         raise RuntimeError(f"atomic_output_files: {t.name} was not written")
                     os.chmod(tmp, _file_mode())
                 check_output_files(targets, overwrite=overwrite, inputs=inputs, what=what)
                 with signals.blocked():
                     for t, tmp in tmps.items():
-                        os.replace(tmp, t)
+                        os.replace(tmp, t)  # replaces a file (never follows a link: none is there)
             except OSError as e:
-                for tmp in tmps.values():
-                    _rmtree(tmp)
-                if _about_output(e, *tmps, *targets):
+                for h in holders.values():
+                    _rmtree(h)
+                if _about_output(e, *holders.values(), *targets):
                     raise UserError(f"cannot write the output ({_reason(e)})", argument=what, value=targets[0]) from None
                 raise
             except BaseException:
-                for tmp in tmps.values():
-                    _rmtree(tmp)
+                for h in holders.values():
+                    _rmtree(h)
                 raise
+            for h in holders.values():
+                _rmtree(h)
     except BaseException:
         _remove_created(created)
         raise

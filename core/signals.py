@@ -1,8 +1,8 @@
-"""Interrupts and termination: SIGINT, SIGTERM and SIGHUP become exceptions in the commands.
+"""Interrupts and termination: SIGINT, SIGTERM, SIGHUP and SIGQUIT become exceptions in the commands.
 
 The command line (:func:`thinfilm.cli.main`) calls :func:`install` before it does anything
-else. SIGINT (Ctrl-C) then raises :class:`KeyboardInterrupt` as usual, and SIGTERM and SIGHUP
-raise :class:`Terminated`; both unwind through ``with`` blocks, so
+else. SIGINT (Ctrl-C) then raises :class:`KeyboardInterrupt` as usual, and SIGTERM, SIGHUP and
+SIGQUIT (Ctrl-\\) raise :class:`Terminated`; both unwind through ``with`` blocks, so
 :func:`thinfilm.core.outputs.atomic_output_dir` removes its temporary folder and lock. The
 signal is also recorded (:func:`received`): a library that turns the exception into one of
 its own (an import that fails half-way, a Mitsuba call that wraps it) is still recognised
@@ -22,7 +22,10 @@ from __future__ import annotations
 
 import signal
 
-__all__ = ["Terminated", "install", "received", "reset", "exit_code", "blocked", "deferred"]
+__all__ = ["NAMES", "Terminated", "install", "received", "reset", "exit_code", "blocked", "deferred"]
+
+#: the signals an entry point turns into exceptions (each cleans up like SIGTERM, SIGINT aside)
+NAMES = ("SIGINT", "SIGTERM", "SIGHUP", "SIGQUIT")
 
 _received: int | None = None
 _pending: int | None = None  # arrived inside deferred(), not raised yet
@@ -30,7 +33,7 @@ _defer_depth = 0
 
 
 class Terminated(BaseException):
-    """SIGTERM or SIGHUP arrived (a :class:`BaseException`, like :class:`KeyboardInterrupt`,
+    """SIGTERM, SIGHUP or SIGQUIT arrived (a :class:`BaseException`, like :class:`KeyboardInterrupt`,
     so ``except Exception`` clauses do not swallow it)."""
 
     def __init__(self, signum: int):
@@ -87,7 +90,7 @@ class deferred:
 
 def install() -> None:
     """Install the handlers (main thread of an entry point only)."""
-    for name in ("SIGINT", "SIGTERM", "SIGHUP"):
+    for name in NAMES:
         signum = getattr(signal, name, None)
         if signum is None:
             continue
@@ -113,11 +116,11 @@ def exit_code(signum: int) -> int:
 
 
 class blocked:
-    """Context manager that holds SIGINT, SIGTERM and SIGHUP back while a few file-system
+    """Context manager that holds the signals of :data:`NAMES` back while a few file-system
     steps must run together (renaming a finished output into place); a signal that arrives
     meanwhile is delivered when the block ends. A no-op where signals cannot be masked."""
 
-    _signals = tuple(s for s in (getattr(signal, n, None) for n in ("SIGINT", "SIGTERM", "SIGHUP")) if s)
+    _signals = tuple(s for s in (getattr(signal, n, None) for n in NAMES) if s)
 
     def __enter__(self):
         self._old = None

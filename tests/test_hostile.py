@@ -207,6 +207,22 @@ def _few_faces(monkeypatch, c):
     monkeypatch.setattr(shapes, "MAX_MESH_FACES", 10)
 
 
+def _decoys(*setups):
+    """A decoy file and a decoy folder beside ``--out`` (and ``thesis.txt``, the target of the
+    links the cases plant), then ``setups``: the runner checks them all byte-identical after."""
+    def setup(c):
+        c.write("decoy.txt", "a file of the user's")
+        c.write("decoy/inner.txt", "a folder of the user's")
+        c.write("thesis.txt", "four years of work")
+        for s in setups:
+            s(c)
+    return setup
+
+
+def _link(rel, target):
+    return lambda c: os.symlink(c.p(target), c.p(rel))
+
+
 def gen(*extra, out="out"):
     return lambda c: ["generate", "hemisphere", *SMALL, *extra, "--out", c.p(out) if out else "/"]
 
@@ -272,6 +288,14 @@ CASES = [
     Case("render/not-utf8", render(scene="bin.toml"), "not a UTF-8 text file",
          setup=lambda c: c.write("bin.toml", NOT_UTF8)),
     Case("render/unknown-variant", render("--variant", "nope"), "unknown Mitsuba variant 'nope'"),
+    Case("render/overwrite-an-output-that-is-a-link", render("--overwrite"), "img.exr: is a symbolic link",
+         setup=_decoys(_link("img.exr", "thesis.txt"))),
+    Case("render/output-a-dangling-link", render(), "is a symbolic link that points nowhere",
+         setup=_decoys(_link("img.png", "gone/zzz"))),
+    Case("render/overwrite-a-fifo", render("--overwrite"), "is not a regular file",
+         setup=_decoys(lambda c: os.mkfifo(c.p("img.exr")))),
+    Case("render/lock-path-a-link-to-a-user-file", render(), "'.img.exr.lock' beside it is a symbolic link",
+         setup=_decoys(_link(".img.exr.lock", "thesis.txt"))),
     Case("render/cuda-without-gpu", render("--variant", "cuda_ad_mono_polarized"), "cannot run on this machine",
          absent=("libLLVM",), skip=lambda: "a GPU is present" if has_gpu() else None),
     Case("render/exposure-negative", render("--exposure", "-2"), "--exposure: expected 'auto' or a positive number"),
@@ -439,6 +463,23 @@ CASES = [
          setup=lambda c: c.write("file", "x")),
     Case("generate/out-root", gen(out=None), "file-system root"),
     Case("generate/lock-held", gen(), "another thinfilm command", hold=_lock("out")),
+    # the output machinery touches only what it made: the lock path, links, named-alike files
+    Case("generate/lock-path-a-link-to-a-user-file", gen(), "'.out.lock' beside it is a symbolic link that "
+         "thinfilm did not make", setup=_decoys(_link(".out.lock", "thesis.txt"))),
+    Case("generate/lock-path-a-dangling-link", gen(), "'.out.lock' beside it is a symbolic link",
+         setup=_decoys(_link(".out.lock", "gone/zzz"))),
+    Case("generate/lock-path-a-user-file", gen(), "'.out.lock' beside it is a file that thinfilm did not make",
+         setup=_decoys(lambda c: c.write(".out.lock", "my own lock file"))),
+    Case("generate/lock-path-a-user-folder", gen(), "'.out.lock' beside it is a folder",
+         setup=_decoys(lambda c: c.write(".out.lock/notes.txt", "mine"))),
+    Case("generate/lock-of-another-host", gen(), "another thinfilm command (process 1 on elsewhere)",
+         setup=_decoys(lambda c: c.write(".out.lock", "thinfilm-lock/1 1 elsewhere\n"))),
+    Case("generate/out-a-dangling-link", gen(out="dangling"), "is a symbolic link that points nowhere",
+         setup=_decoys(_link("dangling", "gone/zzz"))),
+    Case("generate/out-under-a-dangling-link", gen(out="dangling/out"), "is a symbolic link that points nowhere",
+         setup=_decoys(_link("dangling", "gone/zzz"))),
+    Case("generate/out-a-link-to-an-earlier-dataset", gen(out="link"), "refusing to write through it",
+         setup=_decoys(_link("link", "ds"))),
     Case("generate/full-disk", gen(out="new/deeper/out"), "cannot write the output (No space left on device)",
          patch=_full_disk),
 
@@ -491,6 +532,10 @@ CASES = [
     Case("reconstruct/unknown-method", rec("rgb", "--method", "telepathy"), "telepathy"),
     Case("reconstruct/spectral-out-is-the-dataset", rec("spectral", out="ds"), "is the input"),
     Case("reconstruct/lock-held", rec(), "another thinfilm command", hold=_lock("out")),
+    Case("reconstruct/lock-path-a-link-to-a-user-file", rec(out="est"), "'.est.lock' beside it is a symbolic "
+         "link", setup=_decoys(_link(".est.lock", "thesis.txt"))),
+    Case("reconstruct/lock-path-a-user-file", rec(out="est"), "'.est.lock' beside it is a file",
+         setup=_decoys(lambda c: c.write(".est.lock", "12345\n"))),
 
     # --- evaluate ---------------------------------------------------------------------------------
     Case("evaluate/out-is-the-dataset", ev(out="ds"), "is the input"),
@@ -740,7 +785,8 @@ def _temporaries(folder, name):
 SLOW = ["generate", "hemisphere", "--resolution", "96", "--set", "noise.model=none"]
 
 
-@pytest.mark.parametrize("sig, code, word", [(signal.SIGTERM, 143, "terminated"), (signal.SIGINT, 130, "interrupted")])
+@pytest.mark.parametrize("sig, code, word", [(signal.SIGTERM, 143, "terminated"), (signal.SIGINT, 130, "interrupted"),
+                                             (signal.SIGQUIT, 131, "terminated"), (signal.SIGHUP, 129, "terminated")])
 def test_a_signal_while_writing_leaves_nothing(tmp_path, sig, code, word):
     (tmp_path / "keep.txt").write_text("mine")
     before = snapshot(tmp_path)
@@ -759,12 +805,96 @@ def test_the_next_run_removes_what_a_killed_run_left(tmp_path, capfd):
     proc.kill()
     proc.communicate(timeout=60)
     left = _temporaries(tmp_path, "out")
-    assert any(".tmp-" in n for n in left)  # SIGKILL cannot be cleaned up after...
+    assert any(".tmp-" in n for n in left) and ".out.lock" in left  # SIGKILL cannot be cleaned up after...
     (tmp_path / ".out.tmp-notours").mkdir()  # a name outside the pattern is never touched
+    mine = tmp_path / f".out.tmp-{proc.pid}@{_host()}-abcdefgh"  # nor a folder named like ours, without our record
+    (mine / "sub").mkdir(parents=True)
+    (mine / "sub" / "notes.txt").write_text("mine")
+    before = snapshot(mine)
+    capfd.readouterr()
     assert run_cli(["generate", "hemisphere", *SMALL, "--out", tmp_path / "out"]) == 0, capfd.readouterr().err
-    # ... the next run writing beside it removes it, and the lock file of the dead process too.
-    assert _temporaries(tmp_path, "out") == [".out.tmp-notours"]
+    # ... the next run writing beside it removes it, and takes over and removes the dead process's lock.
+    assert _temporaries(tmp_path, "out") == sorted([".out.tmp-notours", mine.name])
+    assert snapshot(mine) == before
     assert (tmp_path / "out" / "meta.json").is_file()
+
+
+def _host():
+    from thinfilm.core import outputs
+
+    return outputs.host_tag()
+
+
+def _beside(root):
+    """A decoy file and a decoy folder, and the snapshot to compare them with."""
+    (root / "decoy.txt").write_text("a file of the user's")
+    (root / "decoy").mkdir()
+    (root / "decoy" / "inner.txt").write_text("a folder of the user's")
+    return {k: v for k, v in snapshot(root).items() if k.startswith("decoy")}
+
+
+def _decoys_of(root):
+    return {k: v for k, v in snapshot(root).items() if k.startswith("decoy")}
+
+
+def test_folders_and_files_named_like_stale_temporaries_are_never_removed(base, tmp_path, monkeypatch, capfd):
+    monkeypatch.chdir(tmp_path)
+    decoys = _beside(tmp_path)
+    mine = [tmp_path / f".out.tmp-999999@{_host()}-abcdefgh", tmp_path / f".out.old-999999@{_host()}-abcdefgh",
+            tmp_path / f".out.stage-999999@{_host()}-abcdefgh"]
+    for folder in mine:
+        (folder / "chapter").mkdir(parents=True)
+        (folder / "chapter" / "1.tex").write_text("mine")
+    (tmp_path / f".out.tmp-999999@{_host()}-abcdefgh.exr").write_text("a file of mine")
+    (tmp_path / "out").mkdir()  # an empty folder: may be filled
+    before = {k: v for k, v in snapshot(tmp_path).items() if k.startswith(".out.")}
+    capfd.readouterr()
+    assert run_cli(["generate", "hemisphere", *SMALL, "--out", "out"]) == 0, capfd.readouterr().err
+    out, err = capfd.readouterr()
+    assert err == "" and out.startswith("wrote")
+    assert {k: v for k, v in snapshot(tmp_path).items() if k.startswith(".out.")} == before
+    assert _decoys_of(tmp_path) == decoys and (tmp_path / "out" / "meta.json").is_file()
+
+
+def test_an_old_output_that_cannot_be_removed_whole_is_kept_as_it_was(base, tmp_path, monkeypatch, capfd):
+    """An immutable file in the old output (simulated: one file of it refuses to move, where a
+    deletion would fail too): the old output stays whole, the new one is kept beside it and
+    named in the one line, the exit code is 2."""
+    from thinfilm.core import outputs
+
+    monkeypatch.chdir(tmp_path)
+    decoys = _beside(tmp_path)
+    assert run_cli(["generate", "hemisphere", *SMALL, "--seed", "1", "--out", "out"]) == 0
+    old = snapshot(tmp_path / "out")
+    move = outputs.move_entry
+
+    def immutable(src, dst):
+        if os.path.basename(src) == "meta.json":
+            raise PermissionError(errno.EPERM, os.strerror(errno.EPERM), src)
+        move(src, dst)
+
+    monkeypatch.setattr(outputs, "move_entry", immutable)
+    capfd.readouterr()
+    code = run_cli(["generate", "hemisphere", *SMALL, "--seed", "2", "--out", "out"])
+    out, err = capfd.readouterr()
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 1 and out == "", err
+    assert lines[0].startswith("thinfilm: error: --out ") and "cannot remove the old output" in lines[0]
+    assert f"it is kept as it was, and the new output is at {tmp_path / 'out.new'}" in lines[0], lines[0]
+    assert snapshot(tmp_path / "out") == old  # whole, byte for byte
+    assert json.loads((tmp_path / "out.new" / "meta.json").read_text())["seed"] == 2
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["decoy", "decoy.txt", "out", "out.new"]
+    assert _decoys_of(tmp_path) == decoys
+
+
+def test_a_stale_lock_of_a_killed_process_is_taken_over(base, tmp_path, monkeypatch, capfd):
+    monkeypatch.chdir(tmp_path)
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    (tmp_path / ".out.lock").write_text(f"thinfilm-lock/1 {dead.pid} {_host()}\n")
+    capfd.readouterr()
+    assert run_cli(["generate", "hemisphere", *SMALL, "--out", "out"]) == 0, capfd.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
 
 
 def test_two_writers_to_one_out_cannot_both_succeed(tmp_path, capfd):

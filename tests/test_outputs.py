@@ -11,7 +11,7 @@ import pytest
 
 from thinfilm.core import outputs
 from thinfilm.core.errors import UserError
-from thinfilm.core.outputs import (MARKER, atomic_output_dir, atomic_output_files, check_output_dir,
+from thinfilm.core.outputs import (MARKER, TEMP_MARKER, atomic_output_dir, atomic_output_files, check_output_dir,
                                    check_output_files, clean_stale_temporaries, open_output_dir, output_lock,
                                    read_marker)
 
@@ -105,7 +105,7 @@ def test_swap_without_renameat2_falls_back_to_two_renames(tmp_path, monkeypatch)
 def test_the_lock_admits_one_writer_and_is_removed_after(tmp_path):
     out = tmp_path / "out"
     with output_lock(out):
-        assert (tmp_path / ".out.lock").read_text().strip() == str(os.getpid())
+        assert (tmp_path / ".out.lock").read_text().split() == ["thinfilm-lock/1", str(os.getpid()), outputs.host_tag()]
         with pytest.raises(UserError, match=f"another thinfilm command \\(process {os.getpid()}\\)"):
             with atomic_output_dir(out, command="x"):
                 pass
@@ -114,24 +114,43 @@ def test_the_lock_admits_one_writer_and_is_removed_after(tmp_path):
         pass
 
 
+def _record(folder, pid, host):
+    """The record a temporary folder of ours holds (TEMP_MARKER)."""
+    _write(folder, {TEMP_MARKER: json.dumps({"format": "thinfilm-temporary/1", "pid": pid, "host": host})})
+
+
 def test_stale_temporaries_only_ours_only_dead(tmp_path):
     host, dead = outputs.host_tag(), _dead_pid()
     stale = tmp_path / f".out.tmp-{dead}@{host}-abcd1234"
     alive = tmp_path / f".out.tmp-{os.getpid()}@{host}-abcd1234"
     other_host = tmp_path / f".out.tmp-{dead}@elsewhere-abcd1234"
-    not_ours = tmp_path / ".out.tmp-xyz"
-    for p in (stale, alive, other_host, not_ours):
+    for p, pid, h in ((stale, dead, host), (alive, os.getpid(), host), (other_host, dead, "elsewhere")):
         _write(p, {"x.exr": "x"})
+        _record(p, pid, h)
+    # named like ours but without our record, or with a record of another process: not ours
+    unmarked = tmp_path / f".out.tmp-{dead}@{host}-abcd5678"
+    mismatched = tmp_path / f".out.tmp-{dead}@{host}-abcd9999"
+    _write(unmarked, {"thesis.tex": "mine"})
+    _write(mismatched, {"x": "x"})
+    _record(mismatched, dead + 1, host)
+    not_ours = tmp_path / ".out.tmp-xyz"
+    _write(not_ours, {"x.exr": "x"})
     stale_file = tmp_path / f".img.exr.tmp-{dead}@{host}-abcd1234.exr"
-    stale_file.write_text("x")
+    stale_file.write_text("a file cannot hold our record")
+    link = tmp_path / f".lnk.tmp-{dead}@{host}-abcd1234"
+    os.symlink(stale, link)
     removed = clean_stale_temporaries(tmp_path)
-    assert sorted(removed) == sorted([stale, stale_file])
-    assert _names(tmp_path) == sorted(p.name for p in (alive, other_host, not_ours))
+    assert removed == [stale]
+    assert _names(tmp_path) == sorted(p.name for p in (alive, other_host, not_ours, unmarked, mismatched,
+                                                      stale_file, link))
+    assert (unmarked / "thesis.tex").read_text() == "mine"
 
 
 def test_an_old_output_moved_aside_by_a_killed_swap_is_moved_back(tmp_path):
-    old = tmp_path / f".out.old-{_dead_pid()}@{outputs.host_tag()}-abcd1234"
-    _write(old, {"meta.json": "{}"})
+    holder = tmp_path / f".out.tmp-{_dead_pid()}@{outputs.host_tag()}-abcd1234"
+    with atomic_output_dir(holder / "out.old", command="x") as tmp:
+        _write(tmp, {"meta.json": "{}"})
+    _record(holder, int(holder.name.split("-")[1].split("@")[0]), outputs.host_tag())
     clean_stale_temporaries(tmp_path)
     assert _names(tmp_path) == ["out"] and (tmp_path / "out" / "meta.json").is_file()
 
@@ -202,3 +221,38 @@ def test_output_files_overwrite_only_when_asked_and_never_an_input(tmp_path):
         with atomic_output_files([tmp_path / "x.exr"]) as tmp:
             raise RuntimeError("render failed")
     assert _names(tmp_path) == ["img.exr", "img.png"]
+
+
+@pytest.mark.parametrize("exchange", [True, False])
+def test_an_old_output_that_cannot_be_removed_whole_stays_and_the_new_one_is_kept_beside(tmp_path, monkeypatch,
+                                                                                       exchange):
+    out = tmp_path / "out"
+    with atomic_output_dir(out, command="x") as tmp:
+        _write(tmp, {"a/b/keep.txt": "old", "top.txt": "old"})
+    before = {p.relative_to(out).as_posix(): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    if not exchange:
+        monkeypatch.setattr(outputs, "exchange_paths", lambda a, b: False)
+    move = outputs.move_entry
+
+    def immutable(src, dst):
+        if os.path.basename(src) == "keep.txt":
+            raise PermissionError(1, "Operation not permitted", src)
+        move(src, dst)
+
+    monkeypatch.setattr(outputs, "move_entry", immutable)
+    with pytest.raises(UserError, match="cannot remove the old output .*'a/b/keep.txt'.*kept as it was, and the "
+                                        "new output is at .*out.new"):
+        with atomic_output_dir(out, command="x") as tmp:
+            _write(tmp, {"top.txt": "new"})
+    assert {p.relative_to(out).as_posix(): p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+    assert (tmp_path / "out.new" / "top.txt").read_text() == "new"
+    assert _names(tmp_path) == ["out", "out.new"]
+
+
+def test_output_files_are_never_written_through_a_link(tmp_path):
+    (tmp_path / "thesis.txt").write_text("mine")
+    os.symlink(tmp_path / "thesis.txt", tmp_path / "img.exr")
+    with pytest.raises(UserError, match="is a symbolic link"):
+        with atomic_output_files([tmp_path / "img.exr"], overwrite=True) as tmp:
+            pass
+    assert (tmp_path / "thesis.txt").read_text() == "mine"

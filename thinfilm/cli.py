@@ -343,7 +343,7 @@ def main(argv=None) -> int:
 
     previous = {}
     if _is_main_thread():
-        for name in ("SIGINT", "SIGTERM", "SIGHUP"):
+        for name in signals.NAMES:
             signum = getattr(signal, name, None)
             if signum is not None:
                 previous[signum] = signal.getsignal(signum)
