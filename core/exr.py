@@ -331,6 +331,7 @@ def _check_layout(data: bytes) -> None:
     channels = _channel_list(attrs["channels"][1])
     plain = all(xs == 1 and ys == 1 for _, _, xs, ys in channels)
     row_bytes = (x1 - x0 + 1) * sum(_BYTES_PER_SAMPLE.get(kind, 4) for _, kind, _, _ in channels)
+    packed = []  # (start, size, expected, i) of the compressed chunks to check
     for i, offset in enumerate(offsets):
         if offset == 0 or offset + 8 > len(data):
             raise _Damaged("truncated", f"chunk {i} of {chunks} is missing")
@@ -345,18 +346,43 @@ def _check_layout(data: bytes) -> None:
             raise _Damaged("truncated", f"chunk {i} of {chunks} is cut off")
         if plain and compression in (_NO_COMPRESSION, _ZIPS, _ZIP):
             expected = min(lines, y1 + 1 - y) * row_bytes
-            _check_chunk(data, offset + 8, size, expected, compression, i)
+            if size == expected:
+                continue  # stored as is (compression would not have made it smaller)
+            if compression == _NO_COMPRESSION or size > expected:
+                raise _Damaged("damaged", f"chunk {i} holds {size} bytes, expected {expected}")
+            packed.append((offset + 8, size, expected, i))
+    _check_compressed(data, packed)
 
 
-def _check_chunk(data, start, size, expected, compression, i):
-    if size == expected:
-        return  # stored as is (compression would not have made it smaller)
-    if compression == _NO_COMPRESSION or size > expected:
-        raise _Damaged("damaged", f"chunk {i} holds {size} bytes, expected {expected}")
+def _check_compressed(data, packed) -> None:
+    """Inflate the compressed chunks (their Adler-32 sums checked at the end of each stream),
+    on the thread budget: zlib releases the interpreter lock while it inflates. Raises the
+    first damaged chunk's error, in chunk order."""
+    def check(chunk):
+        try:
+            _check_chunk(data, *chunk)
+        except _Damaged as e:
+            return e
+        return None
+
+    workers = min(thread_budget(), len(packed))
+    if workers <= 1:
+        errors = [check(c) for c in packed]
+    else:
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(workers) as pool:
+            errors = list(pool.map(check, packed))
+    for e in errors:
+        if e is not None:
+            raise e
+
+
+def _check_chunk(data, start, size, expected, i):
     stream = zlib.decompressobj()
     try:
         # at most one byte more than expected; the end of the stream checks its Adler-32 sum
-        unpacked = stream.decompress(data[start:start + size], expected + 1)
+        unpacked = stream.decompress(memoryview(data)[start:start + size], expected + 1)
     except zlib.error:
         raise _Damaged("damaged", f"chunk {i} does not decompress") from None
     if len(unpacked) != expected or not stream.eof or stream.unused_data:
