@@ -284,15 +284,20 @@ def _temp_record(pid: int | None = None, host: str | None = None) -> bytes:
 def _make_temporary(parent: Path, name: str, kind: str = "tmp") -> Path:
     """Create a new temporary folder ``.NAME.KIND-PID@HOST-XXXXXXXX`` in ``parent``, holding
     the file :data:`TEMP_MARKER` that records this process: what makes it ours to remove
-    later. Signals are held back meanwhile, so it never exists without its record."""
-    with signals.blocked():
-        path = parent / _temp_name(name, kind)
-        os.mkdir(path, 0o700)
-        try:
+    later. Signals are held back meanwhile, so it never exists without its record; one that
+    arrived meanwhile is raised as the block ends, before the caller holds the folder, so the
+    folder is removed here then."""
+    path = parent / _temp_name(name, kind)
+    made = False
+    try:
+        with signals.blocked():
+            os.mkdir(path, 0o700)
+            made = True
             _new_file(path / TEMP_MARKER, _temp_record())
-        except BaseException:
+    except BaseException:
+        if made:
             shutil.rmtree(path, ignore_errors=True)
-            raise
+        raise
     return path
 
 

@@ -333,6 +333,12 @@ def test_bad_input_exits_2_with_one_line(rendered, tmp_path, capsys, case):
         meta = json.loads((ds / "meta.json").read_text())
         meta["wavelengths_nm"] = meta["wavelengths_nm"][:8]
         (ds / "meta.json").write_text(json.dumps(meta))
+        # a whole 8-band capture (a meta.json naming fewer bands than the cubes is refused
+        # on its own, test_dataset)
+        keep = {f"band{i:03d}" for i in range(8)}
+        _rewrite_spectral(ds, lambda ch: {k: v for k, v in ch.items() if k.split(".")[-1] in keep})
+        _rewrite_spectral(ds, lambda ch: {k: v for k, v in ch.items() if k.split(".")[-1] in keep},
+                          "stokes_spectral.exr")
     elif case == "no_substrate":
         meta = json.loads((ds / "meta.json").read_text())
         del meta["substrate_ior"], meta["film"]
