@@ -98,3 +98,33 @@ def test_a_maximum_likelihood_fit_to_generated_noise_reaches_the_bound(capture):
     angle = np.degrees(np.arccos(np.clip(nf @ n[0], -1, 1)))
     assert np.sqrt(np.mean(angle ** 2)) == pytest.approx(bound["normal_deg"][0], rel=0.12)
     assert np.std(x[:, 2]) == pytest.approx(bound["thickness_nm"][0, 0], rel=0.12)
+
+
+def test_evaluate_reports_the_bound_of_the_capture_the_estimate_used(tmp_path):
+    """metrics.json holds the bound beside the errors: for the spectral default (the Stokes
+    cube) and the RGB default (the polarization camera), and nothing without camera noise."""
+    import json
+
+    from thinfilm.cli import main
+
+    ds = tmp_path / "h"
+    assert main(["generate", "hemisphere", "--out", str(ds), "--resolution", "40"]) == 0
+    seen = {}
+    for kind in ("spectral", "rgb"):
+        assert main(["reconstruct", kind, str(ds), "--out", str(tmp_path / kind)]) == 0
+        assert main(["evaluate", str(ds), str(tmp_path / kind), "--out", str(tmp_path / f"ev_{kind}")]) == 0
+        m = json.loads((tmp_path / f"ev_{kind}" / "metrics.json").read_text())
+        info = json.loads((tmp_path / f"ev_{kind}" / "evaluation.json").read_text())["bound"]
+        assert set(m["crlb_normal_deg"]) == {"mean", "median", "p95", "max", "rms"}
+        assert 0 < m["crlb_normal_deg"]["rms"] < m["crlb_normal_deg"]["max"] < 10
+        assert 0 < m["crlb_thickness_nm"]["rms"] < 10 and info["pixels"] > 100
+        assert m["efficiency_normal"] == pytest.approx(m["crlb_normal_deg"]["rms"] / m["normal_error_rms_deg"])
+        seen[kind] = (info["capture"], m["crlb_thickness_nm"]["rms"])
+    assert seen["spectral"][0] == "stokes" and seen["rgb"][0] == "polarized_rgb"
+    assert seen["spectral"][1] < seen["rgb"][1]  # 81 bands know the thickness better than 3 colours
+    clean = tmp_path / "clean"
+    assert main(["generate", "hemisphere", "--out", str(clean), "--resolution", "24", "--set", "noise.model=none"]) == 0
+    assert main(["reconstruct", "spectral", str(clean), "--out", str(tmp_path / "ec")]) == 0
+    assert main(["evaluate", str(clean), str(tmp_path / "ec"), "--out", str(tmp_path / "evc")]) == 0
+    m = json.loads((tmp_path / "evc" / "metrics.json").read_text())
+    assert m["efficiency_normal"] is None and m["crlb_normal_deg"]["rms"] is None
