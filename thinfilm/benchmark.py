@@ -616,8 +616,7 @@ def write_report(results: dict) -> str:
               "mean ΔE*ab; each figure is the mean over the scenes the method completed of that "
               "scene's mean (p95: of its 95th percentile). *Efficiency* is the per-pixel Cramér-Rao "
               "bound's RMS over the error's RMS on the pixels of true zenith 15-75° (1: an efficient "
-              "unbiased estimator; above 1 only with priors or bias; `docs/design.md`, *Evaluation "
-              "output*).", ""]
+              "unbiased estimator; above 1 only with priors or bias).", ""]
     for kind in ("rgb", "spectral"):
         board = leaderboard(results, kind)
         if not board:
