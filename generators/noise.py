@@ -1,16 +1,8 @@
-"""Camera noise model ``camera`` of the scene spec (``docs/design.md``, *Scene spec*, ``[noise]``).
+"""Camera noise drawn for the captures (scene spec ``[noise]``, ``docs/design.md``, *Scene spec*).
 
-Each image is exposed with a gain g (electrons per unit reflectance): ``exposure = "auto"``
-picks g so that the image's brightest object pixel collects 90 % of the full well (as a
-careful experimenter sets each band and each polarizer angle); a number fixes g. Then
-
-- electrons  e = Poisson(g · x) + Normal(0, read_noise)          (shot and read noise)
-- digital    DN = clip(round(e / full_well · (2^bits − 1)), 0, 2^bits − 1)   (quantization,
-  saturation at the full well, no negative counts)
-- stored     x' = DN · full_well / (2^bits − 1) / g              (reflectance units)
-
-so the stored images keep the noise of the exposure they were taken at. Model ``none``
-returns the exact images. Random numbers come from ``numpy.random.Generator`` objects
+The model (exposure, shot and read noise, quantization, and the variance it gives each stored
+value) is :mod:`thinfilm.core.noise`, defined there once; this module draws from it. Model
+``none`` returns the exact images. Random numbers come from ``numpy.random.Generator`` objects
 spawned in a fixed order from the spec's seed (one per image stack), so results are
 reproducible.
 """
@@ -19,40 +11,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from thinfilm.core.noise import AUTO_EXPOSURE_FRACTION, exposure_gains
+
 __all__ = ["AUTO_EXPOSURE_FRACTION", "exposure_gains", "digitize", "apply_camera_noise"]
-
-AUTO_EXPOSURE_FRACTION = 0.9
-
-
-def exposure_gains(images: np.ndarray, mask: np.ndarray, noise: dict) -> np.ndarray:
-    """Gain (electrons per unit reflectance) of each image in a stack.
-
-    Parameters
-    ----------
-    images : array (N, H, W[, C])
-        N images (an image may have colour channels, exposed together).
-    mask : array (H, W) bool
-        Object pixels (auto exposure looks only at them; the whole image if none).
-    noise : dict
-        ``full_well`` and ``exposure`` of the resolved spec.
-
-    Returns
-    -------
-    ndarray (N,)
-    """
-    n = images.shape[0]
-    if noise["exposure"] != "auto":
-        return np.full(n, float(noise["exposure"]))
-    sel = mask if np.any(mask) else np.ones(images.shape[1:3], dtype=bool)
-    brightest = images[:, sel].reshape(n, -1).max(axis=1)
-    target = AUTO_EXPOSURE_FRACTION * float(noise["full_well"])
-    # A black image (nothing to expose for) gets the exposure of a perfect white reflector.
-    return np.where(brightest > 0, target / np.where(brightest > 0, brightest, 1.0), target)
 
 
 def digitize(images: np.ndarray, mask: np.ndarray, noise: dict, rng: np.random.Generator):
     """The camera's digital numbers of an image stack (model ``camera``): exposure, shot and
-    read noise, quantization and clipping (see the module docstring).
+    read noise, quantization and clipping (:mod:`thinfilm.core.noise`).
 
     Parameters
     ----------

@@ -146,7 +146,7 @@ def test_metrics_on_hand_made_estimate():
     # |errors| 5, 5, 10, 0: mean 5, median 5, p95 = 5 + 0.85*5 = 9.25, max 10
     assert m["thickness_error_nm"] == pytest.approx({"mean": 5.0, "median": 5.0, "p95": 9.25, "max": 10.0})
     assert m["film_ior_error"] == pytest.approx(0.03)
-    assert set(m) == set(ev.METRIC_KEYS) | {"film_ior_error"}
+    assert set(m) == set(ev.METRIC_KEYS) | {"film_ior_error"} | set(ev.BOUND_KEYS)
     assert m["delta_e_ab"] == {"mean": None, "median": None, "p95": None, "max": None}
 
 
@@ -309,7 +309,7 @@ def test_cli_evaluate_writes_metrics(tmp_path, capsys):
     code, cap = _run_cli(["evaluate", str(root), str(tmp_path / "est"), "--out", str(tmp_path / "out")], capsys)
     assert code == 0, cap.err
     m = json.loads((tmp_path / "out" / "metrics.json").read_text())
-    assert set(m) == set(ev.METRIC_KEYS) | {"film_ior_error"}
+    assert set(m) == set(ev.METRIC_KEYS) | {"film_ior_error"} | set(ev.BOUND_KEYS)
     for key in ev.METRIC_KEYS:
         assert set(m[key]) == {"mean", "median", "p95", "max"}
     assert m["delta_e_ab"]["mean"] <= 0.1

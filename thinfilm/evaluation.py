@@ -43,6 +43,8 @@ from thinfilm.core.variants import RENDER_VARIANT
 
 __all__ = [
     "METRIC_KEYS",
+    "BOUND_KEYS",
+    "bound_metrics",
     "RENDER_VARIANT",
     "summarize",
     "angular_error_deg",
@@ -64,6 +66,11 @@ RERENDER_MAX_SPP = 16
 
 METRIC_KEYS = ("normal_error_deg", "zenith_error_deg", "thickness_error_nm",
                "delta_e_ab", "delta_e_2000", "spectral_rmse")
+
+#: the Cramér-Rao bound beside the errors (:func:`bound_metrics`): the bound's statistics with
+#: ``rms``, the errors' RMS on the same pixels, and the efficiencies (bound RMS / error RMS)
+BOUND_KEYS = ("crlb_normal_deg", "crlb_thickness_nm", "normal_error_rms_deg", "thickness_error_rms_nm",
+              "efficiency_normal", "efficiency_thickness")
 
 
 # -- statistics and per-pixel errors --------------------------------------------------------
@@ -164,12 +171,83 @@ def appearance_error_maps(captured, rendered, wavelengths_nm, illuminant, kind="
             "spectral_rmse": rmse, "lab_captured": lab_c, "lab_rendered": lab_r}
 
 
-def metrics_from_maps(maps: dict, mask, film_ior_error) -> dict:
+def metrics_from_maps(maps: dict, mask, film_ior_error, bound: dict | None = None) -> dict:
     """``metrics.json`` content: each of :data:`METRIC_KEYS` summarized over ``mask``, plus
-    ``film_ior_error``."""
+    ``film_ior_error``, plus the :data:`BOUND_KEYS` of ``bound`` (:func:`bound_metrics`; all
+    None without one)."""
     out = {k: summarize(maps[k], mask) if k in maps else summarize([]) for k in METRIC_KEYS}
     out["film_ior_error"] = None if film_ior_error is None else float(film_ior_error)
+    for k in BOUND_KEYS:
+        out[k] = (bound or {}).get(k, summarize([]) | {"rms": None} if k.startswith("crlb") else None)
     return out
+
+
+def _rms(v):
+    v = np.asarray(v, dtype=np.float64)
+    v = v[np.isfinite(v)]
+    return float(np.sqrt(np.mean(v * v))) if v.size else None
+
+
+def bound_capture(estimate, dataset) -> str:
+    """The capture an estimate was made from, for its bound: ``stokes``, ``spectral_s`` or
+    ``polarized_rgb`` (its ``capture`` entry, else its method's kind, else what the dataset
+    holds)."""
+    from thinfilm.core import registry
+
+    cap = estimate.info.get("capture")
+    if cap in ("stokes", "s", "spectral_s"):
+        return "spectral_s" if cap in ("s", "spectral_s") else "stokes"
+    kinds = {m.kind for m in registry.methods() if estimate.info.get("method") in (m.name, *m.aliases)}
+    if kinds == {"rgb"} or (not kinds and dataset.polarized_rgb and dataset.spectral_s is None):
+        return "polarized_rgb"
+    return "spectral_s" if kinds == {"spectral"} or dataset.stokes is None else "stokes"
+
+
+def bound_metrics(dataset, estimate, maps: dict, mask) -> tuple[dict, dict]:
+    """The per-pixel Cramér-Rao bound (:func:`thinfilm.core.bound.pixel_bound`) of the capture
+    the estimate used, from the ground truth and the dataset's noise model, beside the errors.
+
+    Statistics over the scored pixels (``mask``) whose true zenith lies in
+    :data:`thinfilm.core.bound.ZENITH_RANGE_DEG` (where a per-pixel bound is meaningful):
+    ``crlb_normal_deg``, ``crlb_thickness_nm`` (``{mean, median, p95, max, rms}``), the
+    errors' RMS on the same pixels and ``efficiency_* = bound RMS / error RMS`` (1 for an
+    efficient unbiased estimator; above 1 only with priors or bias). Returns ``(metrics,
+    info)``; metrics empty where the dataset has no ground truth or no camera noise, or holds a
+    stack (one thickness map)."""
+    from thinfilm.core.bound import ZENITH_RANGE_DEG, pixel_bound
+    from thinfilm.core.model import Rig
+
+    noise = dataset.meta.get("noise") or {}
+    gt = dataset.ground_truth
+    film = dataset.film()
+    if not gt or noise.get("model") != "camera" or not film.is_single:
+        why = ("no ground truth" if not gt else "no camera noise" if noise.get("model") != "camera"
+               else "a stack (one thickness map)")
+        return {}, {"computed": False, "reason": why}
+    capture = bound_capture(estimate, dataset)
+    obj = gt["mask"]
+    b = pixel_bound(Rig.of_dataset(dataset), film, gt["normal"][obj], gt["thickness"][obj], noise, capture)
+    crlb_n = np.full(obj.shape, np.nan)
+    crlb_d = np.full(obj.shape, np.nan)
+    crlb_n[obj], crlb_d[obj] = b["normal_deg"], b["thickness_nm"][:, 0]
+    zen = np.degrees(np.arccos(np.clip(gt["normal"][..., 2], -1.0, 1.0)))
+    sel = mask & (zen >= ZENITH_RANGE_DEG[0]) & (zen <= ZENITH_RANGE_DEG[1])
+    out = {}
+    for key, crlb, err in (("normal", crlb_n, maps.get("normal_error_deg")),
+                           ("thickness", crlb_d, maps.get("thickness_error_nm"))):
+        unit = "deg" if key == "normal" else "nm"
+        stats = summarize(crlb, sel)
+        stats["rms"] = _rms(crlb[sel])
+        out[f"crlb_{key}_{unit}"] = stats
+        e_rms = None if err is None else _rms(err[sel & np.isfinite(crlb)])
+        out[f"{key}_error_rms_{unit}"] = e_rms
+        out[f"efficiency_{key}"] = (stats["rms"] / e_rms if e_rms and stats["rms"] is not None
+                                    and np.isfinite(stats["rms"]) else None)
+    maps["crlb_normal_deg"], maps["crlb_thickness_nm"] = crlb_n, crlb_d
+    info = {"computed": True, "capture": capture, "pixels": int(sel.sum()), "zenith_range_deg": list(ZENITH_RANGE_DEG),
+            "noise": noise, "definition": "per-pixel Cramer-Rao bound with the film index known "
+                                          "(thinfilm.core.bound); normal: RMS angle; thickness: standard deviation"}
+    return out, info
 
 
 # -- re-rendering -----------------------------------------------------------------------------
@@ -399,7 +477,10 @@ def _evaluate(dataset_path, estimate_path, progress=False) -> dict:
     if film_true is not None:
         # one number for each index: the effective index of thinfilm.core.film
         film_err = abs(film.effective_index() - ds.film().effective_index())
-    metrics = metrics_from_maps(maps, mask, film_err)
+    t_bound = time.perf_counter()
+    bound, bound_info = bound_metrics(ds, estimate, maps, mask)
+    t_bound = time.perf_counter() - t_bound
+    metrics = metrics_from_maps(maps, mask, film_err, bound)
 
     n_mask = int(ds.ground_truth["mask"].sum()) if have_gt else int(valid.sum())
     info_out = {
@@ -423,7 +504,8 @@ def _evaluate(dataset_path, estimate_path, progress=False) -> dict:
         "statistics": "mean, median, 95th percentile (linear interpolation) and max over the object "
                       "mask (ground-truth mask and estimate valid)",
         "rerender": "normal-mapped plane under the orthographic camera, thinfilm BSDF, dataset rig, no noise",
-        "timings_s": {"rerender": round(t_render, 3)},
+        "timings_s": {"rerender": round(t_render, 3), "bound": round(t_bound, 3)},
+        "bound": bound_info,
     }
     result = {"metrics": metrics, "info": info_out, "maps": maps, "mask": mask, "rendered": rendered,
               "captured": captured, "rerendered_appearance": rerendered, "colour_kind": kind,

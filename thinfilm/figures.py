@@ -171,4 +171,17 @@ def write_evaluation_figures(out_dir, result: dict) -> list:
         panels.append({"image": 100.0 * _masked(maps["spectral_rmse"], mask), "title": "spectral RMSE",
                        "label": "% reflectance", "cmap": "inferno", "vmin": 0.0})
     written.append(save_panels(out_dir / "errors.png", panels))
+    if "crlb_normal_deg" in maps:
+        bound = []
+        for key, title, unit, err in (("crlb_normal_deg", "bound: normal (RMS angle)", "degrees", "normal_error_deg"),
+                                      ("crlb_thickness_nm", "bound: thickness (std)", "nm", "thickness_error_nm")):
+            img = _masked(maps[key], mask)
+            finite = np.isfinite(img)
+            vmax = float(np.percentile(img[finite], 95)) if finite.any() else 1.0
+            bound.append({"image": img, "title": title, "label": unit, "cmap": "viridis", "vmin": 0.0,
+                          "vmax": max(vmax, 1e-3)})
+            ratio = _masked(maps[err] / maps[key], mask)
+            bound.append({"image": ratio, "title": f"|{err.split('_')[0]} error| / bound", "label": "ratio",
+                          "cmap": "magma", "vmin": 0.0, "vmax": 3.0})
+        written.append(save_panels(out_dir / "bound.png", bound))
     return written
