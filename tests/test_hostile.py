@@ -304,7 +304,7 @@ CASES = [
     Case("render/seed-2^32", render("--seed", str(2**32)), "argument --seed"),
     Case("render/spp-2^32", render("--spp", "4294967296"), "argument --spp"),
     Case("render/spp-zero", render("--spp", "0"), "argument --spp"),
-    Case("render/negative-thickness", render(scene="neg.toml"), "'thickness' must be >= 0",
+    Case("render/negative-thickness", render(scene="neg.toml"), "'thickness' must be a finite number from 0 to 100000 nm, got -1.0",
          setup=lambda c: c.write("neg.toml", RENDER_SCENE.replace("THICKNESS", "-1.0"))),
     Case("render/unknown-dict-parameter", render(scene="typo.toml"), '"film_iorr"',
          setup=lambda c: c.write("typo.toml", RENDER_SCENE.replace("THICKNESS", "300.0")

@@ -142,8 +142,8 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from . import microfacet, optics, rgb
-from .bsdf_common import (Film, broadcast_like, check_parameters, mueller_spectrum, positive_float,
+from . import limits, microfacet, optics, rgb
+from .bsdf_common import (Film, broadcast_like, check_parameters, checked_float, mueller_spectrum,
                           to_stokes_bases, variant_class)
 
 __all__ = ["bsdf_class", "register"]
@@ -162,10 +162,11 @@ class _ThinFilmMixin:
         self.m_rgb = rgb.colour_basis() if mi.is_rgb else None
 
         self.m_film = Film(props)
-        self.m_substrate_ior = mi.Float(positive_float(props, "substrate_ior", 1.6))
-        self.m_substrate_k = mi.Float(positive_float(props, "substrate_k", 0.0, allow_zero=True))
-        self.m_ext_ior = mi.Float(positive_float(props, "ext_ior", 1.0))
-        self.m_wavelength = mi.Float(positive_float(props, "wavelength", 550.0))
+        self.m_substrate_ior = mi.Float(checked_float(props, "substrate_ior", 1.6, limits.INDEX))
+        self.m_substrate_k = mi.Float(checked_float(props, "substrate_k", 0.0, limits.EXTINCTION))
+        self.m_ext_ior = mi.Float(checked_float(props, "ext_ior", 1.0, limits.INDEX))
+        self.m_wavelength = mi.Float(checked_float(props, "wavelength", 550.0, limits.WAVELENGTH_NM,
+                                                   unit="nm"))
 
         self.m_rough = microfacet.Roughness(props)
         if self.m_rough.is_rough:
@@ -194,10 +195,10 @@ class _ThinFilmMixin:
 
     def parameters_changed(self, keys=[]):
         check_parameters("thinfilm", self.m_film.checks() + self.m_rough.checks() + [
-            ("substrate_ior", self.m_substrate_ior, False),
-            ("substrate_k", self.m_substrate_k, True),
-            ("ext_ior", self.m_ext_ior, False),
-            ("wavelength", self.m_wavelength, False),
+            ("substrate_ior", self.m_substrate_ior, limits.INDEX),
+            ("substrate_k", self.m_substrate_k, limits.EXTINCTION),
+            ("ext_ior", self.m_ext_ior, limits.INDEX),
+            ("wavelength", self.m_wavelength, limits.WAVELENGTH_NM),
         ])
         self._make_opaque()
 
