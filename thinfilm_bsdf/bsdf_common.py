@@ -139,7 +139,7 @@ def _in_range(value, name, bounds, plugin, unit="", what=None):
 
 def stack_layer_limit():
     """The most layers a ``stack`` may have in the current variant (:mod:`.limits`)."""
-    return limits.MAX_STACK_LAYERS_RGB if mi.is_rgb else limits.MAX_STACK_LAYERS
+    return limits.max_stack_layers(mi.variant())
 
 
 class Film:
