@@ -16,6 +16,7 @@ import json
 import math
 from pathlib import Path
 
+from thinfilm.bsdf import limits as plugin_limits
 from thinfilm.core.errors import UserError
 
 __all__ = ["SHAPE_KINDS", "PROFILES", "LIMITS", "Checker", "resolve", "wavelength_grid", "estimated_memory_bytes"]
@@ -26,7 +27,7 @@ __all__ = ["SHAPE_KINDS", "PROFILES", "LIMITS", "Checker", "resolve", "wavelengt
 LIMITS = {
     "resolution": (2, 16384),            # pixels; 1 pixel has no image to speak of
     "length": (1e-6, 1e6),               # scene units: radius, length, base, height, mesh size
-    "thickness_nm": (0.0, 1e5),          # a film of 100 um is no longer thin
+    "thickness_nm": plugin_limits.THICKNESS_NM,  # a film of 100 um is no longer thin
     "full_well": (1e-3, 1e9),            # electrons
     "read_noise": (0.0, 1e6),            # electrons
     "exposure": (1e-6, 1e12),            # electrons per unit reflectance
@@ -35,9 +36,9 @@ LIMITS = {
     "max_depth": (2, 100),
     "seed": (0, 2**32 - 1),
     "renders_per_image": (1, 20000),     # sub-wavelengths rendered for all bands together
-    "wavelength_nm": (1.0, 1e5),
-    "index": (0.01, 100.0),              # refractive index n (real part)
-    "extinction": (0.0, 100.0),          # extinction coefficient k
+    "wavelength_nm": plugin_limits.WAVELENGTH_NM,
+    "index": plugin_limits.INDEX,        # refractive index n (real part)
+    "extinction": plugin_limits.EXTINCTION,  # extinction coefficient k
 }
 
 # --- the schema ----------------------------------------------------------------------------
@@ -64,8 +65,10 @@ _SHAPE_KEYS = {
 #: the most parts a ``group`` shape may have (counted before any part is checked or built: each
 #: is a mesh of up to about 130 000 triangles)
 MAX_GROUP_PARTS = 64
-#: the most layers a film ``layers`` stack may have (counted before any layer is checked)
-MAX_STACK_LAYERS = 200
+#: the most layers a film ``layers`` stack may have (counted before any layer is checked): the
+#: plugin's limit in the generator's variant (:data:`thinfilm.bsdf.limits.MAX_STACK_LAYERS`,
+#: where the cost per layer is measured)
+MAX_STACK_LAYERS = plugin_limits.MAX_STACK_LAYERS
 #: shape kinds a ``group`` part may be
 _PART_KINDS = tuple(k for k in _SHAPE_KEYS if k not in ("mesh", "group"))
 
@@ -264,7 +267,8 @@ class Checker:
                 self.fail(where, "\"auto\" or a whole number of samples per pixel from 1 to 4096", value)
             return v
         if kind == "roughness":
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value <= 1:
+            low, high = plugin_limits.ALPHA
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not low <= value <= high:
                 self.fail(where, "a microfacet roughness (GGX alpha) from 0 (smooth) to 1", value)
             return float(value)
         if kind == "hole":

@@ -223,6 +223,14 @@ def _link(rel, target):
     return lambda c: os.symlink(c.p(target), c.p(rel))
 
 
+def _thickness_bitmap(c, value):
+    """A render scene whose film thickness is a 2 x 2 PFM bitmap holding ``value`` in one pixel."""
+    pixels = np.full(4, 300.0, dtype="<f4")
+    pixels[0] = value
+    c.write("t.pfm", b"Pf\n2 2\n-1.0\n" + pixels.tobytes())
+    c.write("tex.toml", RENDER_SCENE.replace("THICKNESS", "{ type = 'bitmap', filename = 't.pfm', raw = true }"))
+
+
 def gen(*extra, out="out"):
     return lambda c: ["generate", "hemisphere", *SMALL, *extra, "--out", c.p(out) if out else "/"]
 
@@ -304,8 +312,31 @@ CASES = [
     Case("render/seed-2^32", render("--seed", str(2**32)), "argument --seed"),
     Case("render/spp-2^32", render("--spp", "4294967296"), "argument --spp"),
     Case("render/spp-zero", render("--spp", "0"), "argument --spp"),
-    Case("render/negative-thickness", render(scene="neg.toml"), "'thickness' must be >= 0",
+    Case("render/negative-thickness", render(scene="neg.toml"), "'thickness' must be a finite number from 0 to 100000 nm, got -1.0",
          setup=lambda c: c.write("neg.toml", RENDER_SCENE.replace("THICKNESS", "-1.0"))),
+    Case("render/thickness-inf", render(scene="inf.toml"), "'thickness' must be a finite number from 0 to 100000 nm, "
+         "got inf", setup=lambda c: c.write("inf.toml", RENDER_SCENE.replace("THICKNESS", "inf"))),
+    Case("render/alpha-5", render(scene="rough.toml"), "'alpha' must be a finite number from 0 to 1, got 5.0",
+         setup=lambda c: c.write("rough.toml", RENDER_SCENE.replace("THICKNESS", "300.0")
+                                 .replace("substrate_ior = 1.6 }", "substrate_ior = 1.6, alpha = 5.0 }"))),
+    Case("render/thickness-bitmap-nan", render(scene="tex.toml"), "'thickness': the texture holds nan",
+         setup=lambda c: _thickness_bitmap(c, float("nan"))),
+    Case("render/thickness-bitmap-negative", render(scene="tex.toml"), "'thickness': the texture holds -100 (1 of "
+         "the 4 values of its 'data' out of range); expected a finite number from 0 to 100000 nm",
+         setup=lambda c: _thickness_bitmap(c, -100.0)),
+    Case("render/stack-10000-layers", render(scene="stack.toml"), "'stack' holds 10000 layers, at most 200 in "
+         "llvm_ad_mono_polarized", setup=lambda c: c.write("stack.toml", RENDER_SCENE.replace(
+             "thickness = THICKNESS, film_ior = 1.37,", "stack = '" + ", ".join(["1.5:100"] * 10000) + "',"))),
+    Case("render/sheet-negative-thickness", render(scene="sheet.toml"), "thinfilm_sheet: parameter 'thickness' must "
+         "be a finite number from 0 to 100000 nm, got -3.0", absent=("Traceback", "instantiate"),
+         setup=lambda c: c.write("sheet.toml", RENDER_SCENE.replace("THICKNESS", "-3.0")
+                                 .replace('"thinfilm"', '"thinfilm_sheet"').replace(", substrate_ior = 1.6", ""))),
+    Case("render/xml-alpha-nan", render(scene="rough.xml"), "'alpha' must be a finite number from 0 to 1, got nan",
+         setup=lambda c: c.write("rough.xml", '<scene version="3.0.0"><sensor type="orthographic"><film '
+                                 'type="hdrfilm"><integer name="width" value="4"/><integer name="height" '
+                                 'value="4"/></film></sensor><shape type="sphere"><bsdf type="thinfilm">'
+                                 '<float name="alpha" value="nan"/></bsdf></shape><emitter type="constant"/>'
+                                 '</scene>')),
     Case("render/unknown-dict-parameter", render(scene="typo.toml"), '"film_iorr"',
          setup=lambda c: c.write("typo.toml", RENDER_SCENE.replace("THICKNESS", "300.0")
                                  .replace("film_ior =", "film_iorr ="))),

@@ -152,3 +152,41 @@ def test_imported_stokes_cubes_reconstruct_like_the_original(generated, tmp_path
     assert both.sum() >= 0.95 * a.valid.sum()
     np.testing.assert_allclose(b.thickness_nm[both], a.thickness_nm[both], atol=1.0)
     assert abs(float(b.film_ior) - float(a.film_ior)) < 1e-3
+
+
+def test_provenance_hashes_the_data_file_of_an_envi_cube_as_well_as_its_header(tmp_path):
+    import hashlib
+    import json
+
+    wl, refl = _scene(h=3, w=4, bands=5)
+    seen = set()
+    for i in range(3):  # three cubes with the same header and different samples
+        folder = tmp_path / f"c{i}"
+        folder.mkdir()
+        _save_envi(folder / "cube.hdr", (refl + 0.01 * i).astype(np.float32), wl)
+        _cli(folder / "cube.hdr", "--out", folder / "ds")
+        records = json.loads((folder / "ds" / "meta.json").read_text())["imported_from"]
+        roles = {r["role"]: r for r in records}
+        assert sorted(roles) == ["cube", "cube header"]
+        for name, role in (("cube.hdr", "cube header"), ("cube.img", "cube")):
+            assert roles[role]["path"] == str((folder / name).resolve())
+            assert roles[role]["sha256"] == hashlib.sha256((folder / name).read_bytes()).hexdigest()
+        seen.add(roles["cube"]["sha256"])
+        assert (folder / "cube.hdr").read_bytes() == (tmp_path / "c0" / "cube.hdr").read_bytes()
+    assert len(seen) == 3
+
+
+def test_provenance_of_an_envi_white_cube_and_a_reflectance_csv(tmp_path):
+    import json
+
+    wl, refl = _scene(h=3, w=4, bands=5)
+    _save_envi(tmp_path / "cube.hdr", refl.astype(np.float32), wl)
+    _save_envi(tmp_path / "white.hdr", np.ones((1, 1, 5), np.float32), wl)
+    np.savetxt(tmp_path / "rho.csv", np.stack([wl, np.full(5, 0.9)], -1), delimiter=",", header="wavelength_nm,r")
+    _cli(tmp_path / "cube.hdr", "--white", tmp_path / "white.hdr", "--white-reflectance", tmp_path / "rho.csv",
+         "--out", tmp_path / "ds")
+    meta = json.loads((tmp_path / "ds" / "meta.json").read_text())
+    files = {(r["role"], r["path"].rsplit("/", 1)[-1]) for r in meta["imported_from"]}
+    assert files == {("cube header", "cube.hdr"), ("cube", "cube.img"), ("white header", "white.hdr"),
+                     ("white", "white.img"), ("white reflectance", "rho.csv")}
+    assert meta["calibration"]["white"]["path"].endswith("white.img")

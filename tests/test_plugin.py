@@ -179,12 +179,12 @@ def test_wavelength_sweep_reuses_compiled_kernel(variant_llvm_ad_mono_polarized)
 
 
 @pytest.mark.parametrize("bad, message", [
-    ({"thickness": -5.0}, "'thickness' must be >= 0"),
-    ({"film_ior": 0.0}, "'film_ior' must be > 0"),
-    ({"substrate_ior": -1.6}, "'substrate_ior' must be > 0"),
-    ({"substrate_k": -0.1}, "'substrate_k' must be >= 0"),
+    ({"thickness": -5.0}, "'thickness' must be a finite number from 0 to 100000 nm, got -5.0"),
+    ({"film_ior": 0.0}, "'film_ior' must be a finite number from 0.01 to 100, got 0.0"),
+    ({"substrate_ior": -1.6}, "'substrate_ior' must be a finite number from 0.01 to 100, got -1.6"),
+    ({"substrate_k": -0.1}, "'substrate_k' must be a finite number from 0 to 100, got -0.1"),
     ({"film_ior": "unobtainium"}, "unknown material 'unobtainium'"),
-    ({"wavelength": 0.0}, "'wavelength' must be > 0"),
+    ({"wavelength": 0.0}, "'wavelength' must be a finite number from 1 to 100000 nm, got 0.0"),
 ])
 def test_bad_parameters_raise_one_clear_error(variant_llvm_ad_mono_polarized, bad, message):
     mi = variant_llvm_ad_mono_polarized
@@ -197,7 +197,7 @@ def test_bad_parameter_update_is_refused(variant_llvm_ad_mono_polarized):
     scene = plane_scene(mi, {"type": "thinfilm"}, 30.0, 0.0)
     params = mi.traverse(scene)
     params["plane.bsdf.thickness"] = -1.0
-    with pytest.raises(ValueError, match="'thickness' must be >= 0"):
+    with pytest.raises(ValueError, match="'thickness' must be a finite number from 0 to 100000"):
         params.update()
 
 
@@ -263,3 +263,102 @@ def test_exterior_index_in_plugin_matches_tmm(variant_llvm_ad_mono_polarized):
     args = ([1.33, 1.45, 1.7], [np.inf, 300.0, np.inf], np.radians(theta), 600.0)
     ref = 0.5 * (tmm.coh_tmm("s", *args)["R"] + tmm.coh_tmm("p", *args)["R"])
     np.testing.assert_allclose(S0, ref, atol=1e-4, rtol=0)
+
+
+def _bitmap(mi, value, fill=300.0):
+    data = np.full((2, 2, 1), fill, np.float32)
+    data[0, 0, 0] = value
+    return {"type": "bitmap", "bitmap": mi.Bitmap(data), "raw": True, "filter_type": "nearest"}
+
+
+def _last_line(error):
+    """The one line a user reads: Mitsuba wraps a Python plugin's error, traceback and all."""
+    return str(error).strip().splitlines()[-1]
+
+
+@pytest.mark.parametrize("plugin", ["thinfilm", "thinfilm_sheet"])
+@pytest.mark.parametrize("bad, message", [
+    ({"thickness": float("inf")}, "parameter 'thickness' must be a finite number from 0 to 100000 nm, got inf"),
+    ({"thickness": 1e6}, "parameter 'thickness' must be a finite number from 0 to 100000 nm, got 1000000.0"),
+    ({"film_ior": float("nan")}, "parameter 'film_ior' must be a finite number from 0.01 to 100, got nan"),
+    ({"film_k": float("inf")}, "parameter 'film_k' must be a finite number from 0 to 100, got inf"),
+    ({"ext_ior": 1e9}, "parameter 'ext_ior' must be a finite number from 0.01 to 100, got 1000000000.0"),
+    ({"film_ior": "1.5+200i"}, "parameter 'film_ior' extinction k must be a finite number from 0 to 100, got 200.0"),
+    ({"thickness_scale": float("nan")}, "parameter 'thickness_scale' must be a finite number from 0 to 100000, got nan"),
+    ({"stack": "1.5:100, 2.1:1e7"}, "parameter 'layer_1.thickness' must be a finite number from 0 to 100000 nm, "
+                                    "got 10000000.0"),
+    ({"stack": "1.5:100, 150:80"}, "parameter 'layer_1.ior' must be a finite number from 0.01 to 100, got 150.0"),
+    ({"stack": ", ".join(["1.5:100"] * 201)}, "parameter 'stack' holds 201 layers, at most 200 in llvm_ad_mono_polarized"),
+    ({"stack": ", ".join(["1.5:100"] * 10000)}, "parameter 'stack' holds 10000 layers, at most 200 in llvm_ad_mono_polarized"),
+])
+def test_out_of_range_parameters_are_one_line_naming_them(variant_llvm_ad_mono_polarized, plugin, bad, message):
+    mi = variant_llvm_ad_mono_polarized
+    with pytest.raises(RuntimeError) as info:
+        mi.load_dict({"type": plugin, **bad})
+    line = _last_line(info.value)
+    assert line == f"ParameterError: {plugin}: {message}" or line.startswith(f"ParameterError: {plugin}: {message} ("), line
+
+
+@pytest.mark.parametrize("bad, message", [
+    ({"alpha": 5.0}, "parameter 'alpha' must be a finite number from 0 to 1, got 5.0"),
+    ({"alpha": float("inf")}, "parameter 'alpha' must be a finite number from 0 to 1, got inf"),
+    ({"alpha_u": 0.1, "alpha_v": float("nan")}, "parameter 'alpha_v' must be a finite number from 0 to 1, got nan"),
+    ({"substrate_ior": float("inf")}, "parameter 'substrate_ior' must be a finite number from 0.01 to 100, got inf"),
+    ({"substrate_k": 1e3}, "parameter 'substrate_k' must be a finite number from 0 to 100, got 1000.0"),
+    ({"wavelength": float("nan")}, "parameter 'wavelength' must be a finite number from 1 to 100000 nm, got nan"),
+])
+def test_out_of_range_surface_parameters_are_one_line_naming_them(variant_llvm_ad_mono_polarized, bad, message):
+    mi = variant_llvm_ad_mono_polarized
+    with pytest.raises(RuntimeError) as info:
+        mi.load_dict({"type": "thinfilm", **bad})
+    assert _last_line(info.value) == f"ParameterError: thinfilm: {message}"
+
+
+@pytest.mark.parametrize("plugin", ["thinfilm", "thinfilm_sheet"])
+@pytest.mark.parametrize("name, value, shown, expected", [
+    ("thickness", float("nan"), "nan", "a finite number from 0 to 100000 nm"),
+    ("thickness", -100.0, "-100", "a finite number from 0 to 100000 nm"),
+    ("thickness_scale", float("inf"), "inf", "a finite number from 0 to 100000"),
+])
+def test_bitmap_textures_holding_bad_values_are_refused(variant_llvm_ad_mono_polarized, plugin, name, value, shown,
+                                                        expected):
+    mi = variant_llvm_ad_mono_polarized
+    with pytest.raises(RuntimeError) as info:
+        mi.load_dict({"type": plugin, name: _bitmap(mi, value)})
+    assert _last_line(info.value) == (f"ParameterError: {plugin}: parameter '{name}': the texture holds {shown} "
+                                      f"(1 of the 4 values of its 'data' out of range); expected {expected}")
+
+
+def test_bad_roughness_and_nested_textures_are_refused(variant_llvm_ad_mono_polarized):
+    mi = variant_llvm_ad_mono_polarized
+    with pytest.raises(RuntimeError, match=r"parameter 'alpha': the texture holds 3 \(4 of the 4 values of its "
+                                           r"'data' out of range\); expected a finite number from 0 to 1$"):
+        mi.load_dict({"type": "thinfilm", "alpha": _bitmap(mi, 3.0, fill=3.0)})
+    with pytest.raises(RuntimeError, match=r"parameter 'thickness': the texture holds -5 \(1 of the 1 values of "
+                                           r"its 'color0.value' out of range\)"):
+        mi.load_dict({"type": "thinfilm", "thickness": {"type": "checkerboard", "color0": -5.0, "color1": 300.0}})
+
+
+def test_a_good_bitmap_texture_loads_and_bad_updates_are_refused(variant_llvm_ad_mono_polarized):
+    mi = variant_llvm_ad_mono_polarized
+    bsdf = mi.load_dict({"type": "thinfilm", "thickness": _bitmap(mi, 250.0), "alpha": 0.2})
+    params = mi.traverse(bsdf)
+    params["alpha"] = 5.0
+    with pytest.raises(ValueError, match=r"'alpha' must be a finite number from 0 to 1, got \[5\]"):
+        params.update()
+    params["alpha"] = 0.2
+    params["substrate_ior"] = float("inf")
+    with pytest.raises(RuntimeError, match=r"'substrate_ior' must be a finite number from 0.01 to 100, got \[inf\]"):
+        params.update()
+
+
+def test_the_rgb_variants_allow_fewer_layers(variant_llvm_ad_rgb):
+    mi = variant_llvm_ad_rgb
+    from thinfilm.bsdf.limits import MAX_STACK_LAYERS_RGB
+
+    mi.load_dict({"type": "thinfilm", "stack": ", ".join(["1.5:100"] * MAX_STACK_LAYERS_RGB)})  # loads, no render
+    with pytest.raises(RuntimeError) as info:
+        mi.load_dict({"type": "thinfilm", "stack": ", ".join(["1.5:100"] * (MAX_STACK_LAYERS_RGB + 1))})
+    assert _last_line(info.value).startswith(f"ParameterError: thinfilm: parameter 'stack' holds "
+                                             f"{MAX_STACK_LAYERS_RGB + 1} layers, at most {MAX_STACK_LAYERS_RGB} "
+                                             f"in llvm_ad_rgb")

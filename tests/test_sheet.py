@@ -298,8 +298,8 @@ def test_sheet_parameters(variant_llvm_ad_mono_polarized):
     assert abs(params["film_ior"][0] - 1.33) < 1e-7 and abs(params["thickness"][0] - 400.0) < 1e-4
     for bad, message in [
         ({"stack": "1.4:100", "thickness": 20.0}, "thinfilm_sheet: parameter 'stack' cannot be combined with 'thickness'"),
-        ({"thickness": -1.0}, "thinfilm_sheet: parameter 'thickness' must be >= 0"),
-        ({"ext_ior": 0.0}, "thinfilm_sheet: parameter 'ext_ior' must be > 0"),
+        ({"thickness": -1.0}, "thinfilm_sheet: parameter 'thickness' must be a finite number from 0 to 100000 nm"),
+        ({"ext_ior": 0.0}, "thinfilm_sheet: parameter 'ext_ior' must be a finite number from 0.01 to 100"),
         ({"film_ior": "Unobtainium"}, "thinfilm_sheet: parameter 'film_ior': unknown material 'Unobtainium'"),
     ]:
         with pytest.raises(Exception, match=message):

@@ -189,8 +189,8 @@ def test_stack_layers_are_exposed_and_differentiable(variant_llvm_ad_mono_polari
     ({"stack": "1.5 100"}, "thinfilm: parameter 'stack': stack item '1.5 100': expected INDEX:THICKNESS_NM"),
     ({"stack": 3.0}, "thinfilm: parameter 'stack' must be a string"),
     ({"film_ior": "Au", "film_k": 0.1}, "thinfilm: parameter 'film_k' cannot be combined with film_ior 'Au'"),
-    ({"film_k": -0.1}, "thinfilm: parameter 'film_k' must be >= 0"),
-    ({"thickness_scale": -1.0}, "thinfilm: parameter 'thickness_scale' must be >= 0"),
+    ({"film_k": -0.1}, "thinfilm: parameter 'film_k' must be a finite number from 0 to 100, got -0.1"),
+    ({"thickness_scale": -1.0}, "thinfilm: parameter 'thickness_scale' must be a finite number from 0 to 100000, got -1.0"),
 ])
 def test_bad_stack_parameters_raise_one_clear_error(variant_llvm_ad_mono_polarized, bad, message):
     mi = variant_llvm_ad_mono_polarized
@@ -203,7 +203,7 @@ def test_bad_layer_update_is_refused(variant_llvm_ad_mono_polarized):
     bsdf = mi.load_dict({"type": "thinfilm", "stack": "1.5:100, 2.0:50"})
     params = mi.traverse(bsdf)
     params["layer_1.thickness"] = -1.0
-    with pytest.raises(ValueError, match="'layer_1.thickness' must be >= 0"):
+    with pytest.raises(ValueError, match="'layer_1.thickness' must be a finite number from 0 to 100000"):
         params.update()
 
 

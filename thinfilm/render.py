@@ -65,13 +65,15 @@ def _convert(mi, node, where):
 
 
 def _one_line(error) -> str:
-    """The useful line of a Mitsuba loader error: our plugin's own message where it is wrapped
-    (with a Python traceback) inside Mitsuba's, else Mitsuba's message without its source
-    location, with the list that may follow it (unreferenced parameters) joined on, whole."""
+    """The useful line of a Mitsuba loader error: a Python plugin's own message where Mitsuba
+    wraps it with the Python traceback (nanobind's, which a Python plugin cannot leave out:
+    the last line, ``ParameterError: thinfilm: ...``, without its exception name and, for the
+    ``thinfilm`` plugin, its name), else Mitsuba's message without its source location, with
+    the list that may follow it (unreferenced parameters) joined on, whole."""
     lines = [ln.strip() for ln in str(error).splitlines() if ln.strip()]
-    for line in reversed(lines):
-        if "thinfilm: " in line:
-            return line[line.index("thinfilm: ") + len("thinfilm: "):]
+    if any(ln.endswith("Traceback (most recent call last):") for ln in lines[:-1]):
+        last = re.sub(r"^(ParameterError|ValueError): ", "", lines[-1], count=1)
+        return last[len("thinfilm: "):] if last.startswith("thinfilm: ") else last
     if not lines:
         return type(error).__name__
     first = re.sub(r"^\[[\w.]+:\d+\]\s*", "", lines[0])

@@ -10,17 +10,24 @@ imports Mitsuba; the functions that read properties or build Mitsuba values need
 
 from __future__ import annotations
 
+import math
 import numbers
 
 import drjit as dr
 import mitsuba as mi
 
+from . import limits
 from .materials import Constant, as_dispersion, parse_stack
 
 __all__ = [
+    "ParameterError",
     "fail",
-    "positive_float",
+    "range_text",
+    "checked_float",
     "texture_parameter",
+    "check_texture",
+    "clamped",
+    "stack_layer_limit",
     "Film",
     "StackLayer",
     "check_parameters",
@@ -31,20 +38,37 @@ __all__ = [
 ]
 
 
+class ParameterError(ValueError, RuntimeError):
+    """A bad parameter of a plugin: a ``ValueError``, and a ``RuntimeError`` as Mitsuba's own
+    plugins raise for theirs (Mitsuba's loader reports either as a ``RuntimeError``,
+    "failed to instantiate ... plugin of type ...", that ends with this message)."""
+
+
 def fail(message: str, plugin: str = "thinfilm"):
-    """Raise the ``ValueError`` of a bad parameter, prefixed with the plugin's name."""
-    raise ValueError(f"{plugin}: {message}")
+    """Raise the :class:`ParameterError` of a bad parameter, prefixed with the plugin's name."""
+    raise ParameterError(f"{plugin}: {message}")
 
 
-def positive_float(props, name, default, allow_zero=False, plugin="thinfilm"):
-    """The number given for ``name`` (``default`` when absent) as a float, checked to be > 0
-    (>= 0 with ``allow_zero``) and not NaN."""
+def _number_text(x: float) -> str:
+    return str(int(x)) if float(x).is_integer() and abs(x) < 1e15 else f"{x:g}"
+
+
+def range_text(bounds, unit: str = "") -> str:
+    """``"a finite number from LOW to HIGH UNIT"`` for a ``(low, high)`` range of :mod:`.limits`."""
+    low, high = bounds
+    return f"a finite number from {_number_text(low)} to {_number_text(high)}{' ' + unit if unit else ''}"
+
+
+def checked_float(props, name, default, bounds, plugin="thinfilm", unit=""):
+    """The number given for ``name`` (``default`` when absent) as a float, checked to be finite
+    and within ``bounds`` (``(low, high)``, inclusive; :mod:`.limits`)."""
     value = props.get(name, default) if name in props else default
-    if not isinstance(value, numbers.Real):
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
         fail(f"parameter '{name}' must be a number, got {type(value).__name__}", plugin)
     value = float(value)
-    if value < 0 or (value == 0 and not allow_zero) or value != value:
-        fail(f"parameter '{name}' must be {'>= 0' if allow_zero else '> 0'}, got {value}", plugin)
+    low, high = bounds
+    if not (math.isfinite(value) and low <= value <= high):
+        fail(f"parameter '{name}' must be {range_text(bounds, unit)}, got {value}", plugin)
     return value
 
 
@@ -60,6 +84,64 @@ def texture_parameter(props, name):
     return None
 
 
+#: the parameters of a texture (as ``mi.traverse`` names them) that hold the values it returns:
+#: a ``bitmap``'s ``data``, a ``uniform`` or ``srgb`` texture's ``value``, a spectrum's ``values``
+_VALUE_KEYS = ("data", "value", "values")
+
+
+def check_texture(texture, name, bounds, plugin="thinfilm", unit=""):
+    """Refuse a texture whose stored values (``mi.traverse``: a ``bitmap``'s pixels, a
+    constant's value, nested textures' too) are not finite or lie outside ``bounds``.
+
+    What a texture computes rather than stores (a procedural or a user's Python texture) is
+    not known here: the plugins clamp what they read from a texture into ``bounds`` (NaN read
+    as the low end; :func:`clamped`)."""
+    import numpy as np
+
+    try:
+        params = mi.traverse(texture)
+        items = [(key, params[key]) for key in params.keys()]
+    except Exception:  # a texture that cannot be traversed: its values are clamped when read
+        return
+    low, high = bounds
+    for key, value in items:
+        if key.rsplit(".", 1)[-1] not in _VALUE_KEYS:
+            continue
+        try:
+            values = np.asarray(value, dtype=np.float64).ravel()
+        except (TypeError, ValueError):
+            continue
+        bad = ~(np.isfinite(values) & (values >= low) & (values <= high))
+        if bad.any():
+            fail(f"parameter '{name}': the texture holds {values[bad][0]:g} ({int(bad.sum())} of "
+                 f"the {values.size} values of its '{key}' out of range); expected "
+                 f"{range_text(bounds, unit)}", plugin)
+
+
+def clamped(value, bounds):
+    """``value`` (read from a texture) clamped into ``bounds``, NaN read as the low end."""
+    low, high = bounds
+    return dr.clip(dr.select(dr.isnan(value), low, value), low, high)
+
+
+#: ``thickness_scale``: a relative thickness, at most the thickest film over the thinnest
+SCALE = (0.0, limits.THICKNESS_NM[1])
+
+
+def _in_range(value, name, bounds, plugin, unit="", what=None):
+    """``value`` (already a float) checked finite and within ``bounds``."""
+    low, high = bounds
+    if not (math.isfinite(value) and low <= value <= high):
+        fail(f"parameter '{name}'{' ' + what if what else ''} must be {range_text(bounds, unit)}, "
+             f"got {value}", plugin)
+    return value
+
+
+def stack_layer_limit():
+    """The most layers a ``stack`` may have in the current variant (:mod:`.limits`)."""
+    return limits.max_stack_layers(mi.variant())
+
+
 class Film:
     """The film of a plugin: one film (``thickness``, ``film_ior``, ``film_k``) or a ``stack``,
     with ``thickness_scale``. Reads the properties, exposes and checks the parameters, and
@@ -72,8 +154,10 @@ class Film:
     def __init__(self, props, plugin="thinfilm", default_ior=1.37, default_thickness=400.0):
         self.plugin = plugin
         self.scale_tex = texture_parameter(props, "thickness_scale")
+        if self.scale_tex is not None:
+            check_texture(self.scale_tex, "thickness_scale", SCALE, plugin)
         self.scale = mi.Float(1.0 if self.scale_tex is not None else
-                              positive_float(props, "thickness_scale", 1.0, allow_zero=True))
+                              checked_float(props, "thickness_scale", 1.0, SCALE, plugin))
         self.stack = None
         if "stack" in props:
             given = [name for name in ("thickness", "film_ior", "film_k") if name in props]
@@ -84,20 +168,25 @@ class Film:
             if not isinstance(text, str):
                 fail(f"parameter 'stack' must be a string 'INDEX:THICKNESS_NM, ...', "
                      f"got {type(text).__name__}", plugin)
+            count, most = text.count(",") + 1, stack_layer_limit()
+            if count > most:  # counted before any layer is read
+                fail(f"parameter 'stack' holds {count} layers, at most {most} in {mi.variant()} "
+                     f"(thinfilm.bsdf.limits: every layer adds to the kernel Mitsuba compiles)", plugin)
             try:
                 layers = parse_stack(text)
             except ValueError as e:
                 fail(f"parameter 'stack': {e}", plugin)
-            self.stack = [StackLayer(layer) for layer in layers]
+            self.stack = [StackLayer(layer, i, plugin) for i, layer in enumerate(layers)]
             return
 
         # Thickness: number or texture.
         self.thickness_tex = texture_parameter(props, "thickness")
         if self.thickness_tex is not None:
+            check_texture(self.thickness_tex, "thickness", limits.THICKNESS_NM, plugin, "nm")
             self.thickness = mi.Float(0.0)
         else:
-            self.thickness = mi.Float(positive_float(props, "thickness", default_thickness,
-                                                     allow_zero=True, plugin=plugin))
+            self.thickness = mi.Float(checked_float(props, "thickness", default_thickness,
+                                                    limits.THICKNESS_NM, plugin, "nm"))
 
         # Film index: number, spectrum texture, n+ki text or material name; extinction.
         self.ior_tex = texture_parameter(props, "film_ior")
@@ -109,6 +198,7 @@ class Film:
                     and "uniform=" not in str(raw):
                 fail("parameter 'film_ior': a spectrum needs a spectral variant (Mitsuba's RGB "
                      "variants reduce it to a colour); give a number or a material name", plugin)
+            check_texture(self.ior_tex, "film_ior", limits.INDEX, plugin)
             self.ior = mi.Float(0.0)
         elif isinstance(raw, str):
             try:
@@ -116,8 +206,8 @@ class Film:
             except ValueError as e:
                 fail(f"parameter 'film_ior': {e}", plugin)
             if isinstance(disp, Constant):
-                self.ior = mi.Float(disp.n)
-                k = disp.k
+                self.ior = mi.Float(_in_range(disp.n, "film_ior", limits.INDEX, plugin))
+                k = _in_range(disp.k, "film_ior", limits.EXTINCTION, plugin, what="extinction k")
             else:
                 self.dispersion = disp
                 self.ior = mi.Float(0.0)
@@ -125,9 +215,9 @@ class Film:
                 fail(f"parameter 'film_k' cannot be combined with film_ior {raw!r}, which "
                      f"brings its own extinction", plugin)
         else:
-            self.ior = mi.Float(positive_float(props, "film_ior", default_ior, plugin=plugin))
+            self.ior = mi.Float(checked_float(props, "film_ior", default_ior, limits.INDEX, plugin))
         if k is None:
-            k = positive_float(props, "film_k", 0.0, allow_zero=True, plugin=plugin)
+            k = checked_float(props, "film_k", 0.0, limits.EXTINCTION, plugin)
         self.k = mi.Float(k)
 
     # -- parameters ---------------------------------------------------------
@@ -163,19 +253,20 @@ class Film:
             callback.put("film_k", self.k, diff)
 
     def checks(self):
-        """``(name, value, allow_zero)`` for every scalar parameter (see ``check_parameters``)."""
-        out = [] if self.scale_tex is not None else [("thickness_scale", self.scale, True)]
+        """``(name, value, bounds)`` for every scalar parameter (see ``check_parameters``)."""
+        out = [] if self.scale_tex is not None else [("thickness_scale", self.scale, SCALE)]
         if self.stack is not None:
             for i, layer in enumerate(self.stack):
-                out.append((f"layer_{i}.thickness", layer.thickness, True))
+                out.append((f"layer_{i}.thickness", layer.thickness, limits.THICKNESS_NM))
                 if layer.dispersion is None:
-                    out += [(f"layer_{i}.ior", layer.ior, False), (f"layer_{i}.k", layer.k, True)]
+                    out += [(f"layer_{i}.ior", layer.ior, limits.INDEX),
+                            (f"layer_{i}.k", layer.k, limits.EXTINCTION)]
             return out
         if self.thickness_tex is None:
-            out.append(("thickness", self.thickness, True))
+            out.append(("thickness", self.thickness, limits.THICKNESS_NM))
         if self.ior_tex is None and self.dispersion is None:
-            out.append(("film_ior", self.ior, False))
-        out.append(("film_k", self.k, True))
+            out.append(("film_ior", self.ior, limits.INDEX))
+        out.append(("film_k", self.k, limits.EXTINCTION))
         return out
 
     def describe(self) -> str:
@@ -190,35 +281,38 @@ class Film:
 
     def layers(self, si, wavelengths, active):
         """``[(n, k, thickness_nm), ...]`` from the exterior down, at ``si`` and ``wavelengths``."""
-        scale = (self.scale_tex.eval_1(si, active) if self.scale_tex is not None else self.scale)
+        scale = (clamped(self.scale_tex.eval_1(si, active), SCALE) if self.scale_tex is not None
+                 else self.scale)
         if self.stack is not None:
             return [layer.at(wavelengths, scale) for layer in self.stack]
         if self.ior_tex is not None and mi.is_rgb:  # RGB: one (grey) index per point
-            n = broadcast_like(self.ior_tex.eval_1(si, active), wavelengths)
+            n = broadcast_like(clamped(self.ior_tex.eval_1(si, active), limits.INDEX), wavelengths)
         elif self.ior_tex is not None:
-            n = self.ior_tex.eval(si, active)
+            n = clamped(self.ior_tex.eval(si, active), limits.INDEX)
         elif self.dispersion is not None:
             n = self.dispersion(wavelengths)
         else:
             n = mi.UnpolarizedSpectrum(self.ior)
         k = self.dispersion.extinction(wavelengths) if self.dispersion is not None else self.k
         if self.thickness_tex is not None:
-            thickness = dr.maximum(self.thickness_tex.eval_1(si, active), 0.0)
+            thickness = clamped(self.thickness_tex.eval_1(si, active), limits.THICKNESS_NM)
         else:
             thickness = self.thickness
         return [(n, k, thickness * scale)]
 
 
 class StackLayer:
-    """One layer of a ``stack`` parameter: its thickness and constant index as opaque Floats,
-    or a tabulated material."""
+    """One layer (number ``index`` from the exterior) of a ``stack`` parameter: its thickness and
+    constant index as opaque Floats, or a tabulated material; checked within :mod:`.limits`."""
 
-    def __init__(self, layer):
-        self.thickness = mi.Float(layer.thickness_nm)
+    def __init__(self, layer, index=0, plugin="thinfilm"):
+        name = f"layer_{index}"
+        self.thickness = mi.Float(_in_range(layer.thickness_nm, f"{name}.thickness",
+                                            limits.THICKNESS_NM, plugin, "nm"))
         if isinstance(layer.material, Constant):
             self.dispersion = None
-            self.ior = mi.Float(layer.material.n)
-            self.k = mi.Float(layer.material.k)
+            self.ior = mi.Float(_in_range(layer.material.n, f"{name}.ior", limits.INDEX, plugin))
+            self.k = mi.Float(_in_range(layer.material.k, f"{name}.k", limits.EXTINCTION, plugin))
         else:
             self.dispersion = layer.material
             self.ior = mi.Float(0.0)
@@ -236,13 +330,12 @@ class StackLayer:
 
 
 def check_parameters(plugin, checks):
-    """Refuse a parameter update that makes a value negative (or zero where not allowed) or NaN."""
-    for name, value, allow_zero in checks:
+    """Refuse a parameter update that makes a value non-finite or puts it outside its range:
+    ``checks`` holds ``(name, value, (low, high))``."""
+    for name, value, (low, high) in checks:
         v = dr.ravel(value)
-        bad = dr.any((v < 0) | (v != v)) if allow_zero else dr.any((v <= 0) | (v != v))
-        if bool(bad):
-            fail(f"parameter '{name}' must be {'>= 0' if allow_zero else '> 0'}, got {value}",
-                 plugin)
+        if bool(dr.any(~((v >= low) & (v <= high)))):  # NaN fails both comparisons
+            fail(f"parameter '{name}' must be {range_text((low, high))}, got {value}", plugin)
 
 
 def broadcast_like(value, wavelengths):

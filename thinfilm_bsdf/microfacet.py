@@ -39,7 +39,9 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from .bsdf_common import fail, mueller_spectrum, positive_float, texture_parameter, to_stokes_bases
+from . import limits
+from .bsdf_common import (check_texture, checked_float, clamped, fail, mueller_spectrum, texture_parameter,
+                          to_stokes_bases)
 
 __all__ = ["Roughness", "sample", "evaluate", "pdf", "evaluate_pdf"]
 
@@ -50,7 +52,9 @@ class Roughness:
     """The microfacet parameters of a ``thinfilm`` BSDF, read from its properties.
 
     Parameters as in Mitsuba's ``roughconductor``: ``alpha`` or ``alpha_u`` and
-    ``alpha_v`` (float >= 0 or texture; all zero, the default, is a smooth film),
+    ``alpha_v`` (a float from 0 to 1, :data:`.limits.ALPHA`, or a texture, whose stored values are
+    checked and whose values read are clamped into that range; all zero, the default, is a
+    smooth film),
     ``distribution`` (``"ggx"``, the default, or ``"beckmann"``) and ``sample_visible``
     (default true). Attributes: ``is_rough`` (bool), ``flags`` (the lobe's BSDF flags).
     """
@@ -67,10 +71,11 @@ class Roughness:
         for name in self.names:
             tex = texture_parameter(props, name)
             if tex is not None:
+                check_texture(tex, name, limits.ALPHA)
                 self.values[name] = tex
                 rough = True
             else:
-                value = positive_float(props, name, 0.0, allow_zero=True)
+                value = checked_float(props, name, 0.0, limits.ALPHA)
                 self.values[name] = mi.Float(value)
                 rough = rough or value > 0
         self.is_rough = rough
@@ -111,13 +116,13 @@ class Roughness:
 
     def checks(self):
         """``(name, value, allow_zero)`` for the plugin's check of updated scalar parameters."""
-        return [(name, value, True) for name, value in self.scalars().items()]
+        return [(name, value, limits.ALPHA) for name, value in self.scalars().items()]
 
     def distribution(self, si, active):
         """Mitsuba's microfacet distribution at ``si`` (roughness textures read with ``eval_1``)."""
         def value(name):
             v = self.values[name]
-            return v.eval_1(si, active) if isinstance(v, mi.Texture) else v
+            return clamped(v.eval_1(si, active), limits.ALPHA) if isinstance(v, mi.Texture) else v
 
         if self.anisotropic:
             alpha_u, alpha_v = value("alpha_u"), value("alpha_v")

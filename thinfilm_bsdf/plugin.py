@@ -12,8 +12,8 @@ stack of films.
    * - ``thickness``
      - float or texture
      - 400
-     - Film thickness in nm. A texture (e.g. ``bitmap`` with ``raw: True``) makes it vary over
-       the surface; it is read with ``eval_1``.
+     - Film thickness in nm, 0 to 100 000 (:mod:`thinfilm.bsdf.limits`). A texture (e.g.
+       ``bitmap`` with ``raw: True``) makes it vary over the surface; it is read with ``eval_1``.
      - ``thickness``, differentiable
    * - ``film_ior``
      - float, spectrum, ``n+ki`` text or material name
@@ -34,7 +34,10 @@ stack of films.
      - A stack of films instead of one: ``"INDEX:THICKNESS_NM, ..."`` from the exterior down,
        INDEX a number, ``n+ki`` (e.g. ``1.65+0.01i``) or a material name, e.g.
        ``"MgF2:95, 2.1:62, 1.65+0.01i:80"``. Not together with ``thickness``, ``film_ior`` or
-       ``film_k``.
+       ``film_k``. At most 200 layers in ``mono`` variants, 100 in spectral and 20 in RGB
+       variants: the loop over the layers is unrolled into the kernel, once per wavelength of a
+       ray (24 quadrature nodes in RGB variants), and LLVM's compile time grows faster than the
+       kernel (measured in :data:`thinfilm.bsdf.limits.MAX_STACK_LAYERS`).
      - ``layer_0.thickness``, ``layer_1.thickness``, … (nm, differentiable); ``layer_<i>.ior``
        and ``layer_<i>.k`` for layers with a numeric index (differentiable)
    * - ``thickness_scale``
@@ -67,7 +70,7 @@ stack of films.
    * - ``alpha``
      - float or texture
      - 0
-     - Microfacet roughness, as ``roughconductor``'s. 0 is a smooth film (a delta lobe).
+     - Microfacet roughness, as ``roughconductor``'s, 0 to 1. 0 is a smooth film (a delta lobe).
      - ``alpha`` when > 0 or a texture, differentiable, discontinuous
    * - ``alpha_u``, ``alpha_v``
      - float or texture
@@ -85,6 +88,17 @@ stack of films.
      - true
      - Sample the visible normals (Heitz & d'Eon) rather than all normals.
      - no
+
+Every number must be finite and within its range (:mod:`thinfilm.bsdf.limits`: indices 0.01
+to 100, extinctions 0 to 100, thicknesses 0 to 100 000 nm, wavelength 1 to 100 000 nm,
+``thickness_scale`` 0 to 100 000), else loading (or ``params.update()``) raises
+:class:`~thinfilm.bsdf.bsdf_common.ParameterError` (a ``ValueError`` and a ``RuntimeError``)
+naming the parameter and the value. A texture's stored values (a ``bitmap``'s pixels, a
+constant's value, those of nested textures) are checked when the plugin is made; what a
+texture computes is clamped into the range when it is read (NaN read as the low end).
+Mitsuba's loader reports the error as a ``RuntimeError`` "failed to instantiate ... plugin of
+type "thinfilm": ..." holding the Python traceback, as for every Python plugin (nanobind
+writes it); its last line is ours, and ``thinfilm render`` shows that line alone.
 
 A smooth film (``alpha = 0``) reflects in the mirror direction only (a delta lobe). A rough
 film is Mitsuba's ``roughconductor`` with its Fresnel term replaced by the film's Mueller
@@ -142,8 +156,8 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from . import microfacet, optics, rgb
-from .bsdf_common import (Film, broadcast_like, check_parameters, mueller_spectrum, positive_float,
+from . import limits, microfacet, optics, rgb
+from .bsdf_common import (Film, broadcast_like, check_parameters, checked_float, mueller_spectrum,
                           to_stokes_bases, variant_class)
 
 __all__ = ["bsdf_class", "register"]
@@ -162,10 +176,11 @@ class _ThinFilmMixin:
         self.m_rgb = rgb.colour_basis() if mi.is_rgb else None
 
         self.m_film = Film(props)
-        self.m_substrate_ior = mi.Float(positive_float(props, "substrate_ior", 1.6))
-        self.m_substrate_k = mi.Float(positive_float(props, "substrate_k", 0.0, allow_zero=True))
-        self.m_ext_ior = mi.Float(positive_float(props, "ext_ior", 1.0))
-        self.m_wavelength = mi.Float(positive_float(props, "wavelength", 550.0))
+        self.m_substrate_ior = mi.Float(checked_float(props, "substrate_ior", 1.6, limits.INDEX))
+        self.m_substrate_k = mi.Float(checked_float(props, "substrate_k", 0.0, limits.EXTINCTION))
+        self.m_ext_ior = mi.Float(checked_float(props, "ext_ior", 1.0, limits.INDEX))
+        self.m_wavelength = mi.Float(checked_float(props, "wavelength", 550.0, limits.WAVELENGTH_NM,
+                                                   unit="nm"))
 
         self.m_rough = microfacet.Roughness(props)
         if self.m_rough.is_rough:
@@ -194,10 +209,10 @@ class _ThinFilmMixin:
 
     def parameters_changed(self, keys=[]):
         check_parameters("thinfilm", self.m_film.checks() + self.m_rough.checks() + [
-            ("substrate_ior", self.m_substrate_ior, False),
-            ("substrate_k", self.m_substrate_k, True),
-            ("ext_ior", self.m_ext_ior, False),
-            ("wavelength", self.m_wavelength, False),
+            ("substrate_ior", self.m_substrate_ior, limits.INDEX),
+            ("substrate_k", self.m_substrate_k, limits.EXTINCTION),
+            ("ext_ior", self.m_ext_ior, limits.INDEX),
+            ("wavelength", self.m_wavelength, limits.WAVELENGTH_NM),
         ])
         self._make_opaque()
 

@@ -80,8 +80,8 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from . import optics, rgb
-from .bsdf_common import (Film, broadcast_like, check_parameters, mueller_spectrum, positive_float,
+from . import limits, optics, rgb
+from .bsdf_common import (Film, broadcast_like, check_parameters, checked_float, mueller_spectrum,
                           to_stokes_bases, variant_class)
 
 __all__ = ["sheet_class", "register"]
@@ -96,8 +96,9 @@ class _ThinFilmSheetMixin:
         mi.BSDF.__init__(self, props)
         self.m_rgb = rgb.colour_basis() if mi.is_rgb else None
         self.m_film = Film(props, plugin=_NAME, default_ior=1.33)
-        self.m_ext_ior = mi.Float(positive_float(props, "ext_ior", 1.0, plugin=_NAME))
-        self.m_wavelength = mi.Float(positive_float(props, "wavelength", 550.0, plugin=_NAME))
+        self.m_ext_ior = mi.Float(checked_float(props, "ext_ior", 1.0, limits.INDEX, plugin=_NAME))
+        self.m_wavelength = mi.Float(checked_float(props, "wavelength", 550.0, limits.WAVELENGTH_NM,
+                                                   plugin=_NAME, unit="nm"))
 
         sides = mi.BSDFFlags.FrontSide | mi.BSDFFlags.BackSide
         self.m_components = [mi.BSDFFlags.DeltaReflection | sides, mi.BSDFFlags.Null | sides]
@@ -115,8 +116,9 @@ class _ThinFilmSheetMixin:
         callback.put("wavelength", self.m_wavelength, mi.ParamFlags.NonDifferentiable)
 
     def parameters_changed(self, keys=[]):
-        check_parameters(_NAME, self.m_film.checks() + [("ext_ior", self.m_ext_ior, False),
-                                                        ("wavelength", self.m_wavelength, False)])
+        check_parameters(_NAME, self.m_film.checks() + [("ext_ior", self.m_ext_ior, limits.INDEX),
+                                                        ("wavelength", self.m_wavelength,
+                                                         limits.WAVELENGTH_NM)])
         self._make_opaque()
 
     # -- physics ------------------------------------------------------------

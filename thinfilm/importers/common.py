@@ -12,7 +12,7 @@ import numpy as np
 from thinfilm.core.errors import ThinfilmWarning, UserError
 
 __all__ = ["DEFAULT_WAVELENGTHS", "parse_numbers", "parse_angles", "parse_wavelengths", "read_spectrum_csv",
-           "reference_reflectance", "file_record", "film_fields", "import_meta", "warn_relative_units", "input_files"]
+           "reference_reflectance", "file_record", "csv_records", "film_fields", "import_meta", "warn_relative_units", "input_files"]
 
 #: The wavelength grid of the camera model when none is given (the generator's default bands).
 DEFAULT_WAVELENGTHS = "400:720:4"
@@ -138,6 +138,14 @@ def file_record(path, role: str) -> dict:
         for block in iter(lambda: f.read(1 << 20), b""):
             h.update(block)
     return {"path": str(p), "role": role, "sha256": h.hexdigest()}
+
+
+def csv_records(value, role: str) -> list:
+    """The provenance (:func:`file_record`) of a CSV an option names (``--white-reflectance``,
+    ``--camera``, ``--illuminant``), in a list; empty for a number or a built-in name."""
+    if value is None or isinstance(value, (int, float)) or not str(value).lower().endswith(".csv"):
+        return []
+    return [file_record(value, role)]
 
 
 def film_fields(film_ior=None, substrate_ior=None) -> dict:

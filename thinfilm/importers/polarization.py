@@ -50,7 +50,7 @@ import numpy as np
 
 from thinfilm.core.errors import ThinfilmWarning, UserError
 
-from .common import (DEFAULT_WAVELENGTHS, file_record, film_fields, import_meta, input_files, parse_angles, parse_numbers,
+from .common import (DEFAULT_WAVELENGTHS, csv_records, file_record, film_fields, import_meta, input_files, parse_angles, parse_numbers,
                      parse_wavelengths, reference_reflectance, warn_relative_units)
 from .images import apply_bit_depth, read_image
 
@@ -273,6 +273,7 @@ def import_polarization(images, out, layout, angles=None, pattern=None, bit_dept
         # 5: gains to reflectance units
         inputs = [file_record(img.path, "capture") for img in imgs]
         inputs += [r for r in (cal.dark_record, cal.flat_record) if isinstance(r, dict)]
+        inputs += csv_records(camera, "camera") + csv_records(illuminant, "illuminant")
         calib = cal.record()
         if white_balance is not None:
             gains = np.asarray(parse_numbers(white_balance, "--white-balance", 3))
@@ -283,6 +284,7 @@ def import_polarization(images, out, layout, angles=None, pattern=None, bit_dept
         elif white_reference is not None:
             ref = cal._read(white_reference, "--white-reference image")
             inputs.append(file_record(ref.path, "white reference"))
+            inputs += csv_records(white_reflectance, "white reflectance")
             sat, x = cal.apply(ref.data)
             rho = reference_reflectance(white_reflectance, "--white-reflectance", wl)
             rho_rgb = spectra_to_camera_rgb(rho, wl, camera or DEFAULT_CAMERA, illuminant or DEFAULT_ILLUMINANT)

@@ -37,7 +37,7 @@ import numpy as np
 
 from thinfilm.core.errors import UserError
 
-from .common import (file_record, film_fields, import_meta, input_files, parse_angles, parse_numbers, parse_wavelengths,
+from .common import (csv_records, file_record, film_fields, import_meta, input_files, parse_angles, parse_numbers, parse_wavelengths,
                      read_spectrum_csv, reference_reflectance, warn_relative_units)
 
 __all__ = ["POLARIZERS", "read_cube", "import_spectral", "cli_main"]
@@ -46,8 +46,19 @@ POLARIZERS = ("s", "stokes")
 
 
 class _Cube:
-    def __init__(self, data, wavelengths, fwhm, path, int_max):
+    """A cube read from its files: ``path`` names it in messages (the ``.hdr`` of an ENVI cube),
+    ``files`` are every file it was read from (an ENVI cube's header and data file)."""
+
+    def __init__(self, data, wavelengths, fwhm, path, int_max, files=None):
         self.data, self.wavelengths, self.fwhm, self.path, self.int_max = data, wavelengths, fwhm, path, int_max
+        self.files = list(files) if files is not None else [path]
+
+    def records(self, role: str) -> list:
+        """The provenance of every file of the cube (:func:`file_record`): the header of an ENVI
+        cube as ``"<role> header"``, its data file (or a TIFF file) as ``role``."""
+        if len(self.files) == 1:
+            return [file_record(self.files[0], role)]
+        return [file_record(self.files[0], f"{role} header")] + [file_record(f, role) for f in self.files[1:]]
 
 
 def _envi_header(p: Path):
@@ -94,6 +105,7 @@ def read_cube(path, what: str = "cube") -> _Cube:
             img = envi.open(str(hdr.resolve()), None if p.suffix.lower() == ".hdr" else str(p.resolve()))
             data = np.array(img.asarray())
             meta = img.metadata
+            files = [hdr, Path(img.filename)]
         except UserError:
             raise
         except Exception as e:  # SPy raises its own exception types for bad headers/missing data
@@ -128,6 +140,7 @@ def read_cube(path, what: str = "cube") -> _Cube:
         if axes.endswith("YX"):                      # pages (or planar samples) are bands
             data = np.moveaxis(data, 0, -1)
         wl, fwhm, source = None, None, p
+        files = [p]
     if data.dtype.kind not in "uif":
         raise UserError(f"{source}: the {what} has {data.dtype} samples; expected numbers")
     int_max = float(np.iinfo(data.dtype).max) if data.dtype.kind in "ui" else None
@@ -137,11 +150,12 @@ def read_cube(path, what: str = "cube") -> _Cube:
                         f"more bands")
     if not np.all(np.isfinite(data)):
         raise UserError(f"{source}: the {what} contains NaN or infinite values")
-    return _Cube(data, wl, fwhm, source, int_max)
+    return _Cube(data, wl, fwhm, source, int_max, files)
 
 
 def _reference(spec, what, shape, wavelengths, order):
-    """A dark or white reference: (H, W, B) cube or (B,) spectrum, bands in the cubes' order."""
+    """A dark or white reference: (H, W, B) cube or (B,) spectrum, bands in the cubes' order,
+    and the level given (a number) or the provenance records of every file read (a list)."""
     try:
         level = float(spec)
     except (TypeError, ValueError):
@@ -158,13 +172,13 @@ def _reference(spec, what, shape, wavelengths, order):
         if rw[0] > wavelengths[0] + 1e-6 or rw[-1] < wavelengths[-1] - 1e-6:
             raise UserError(f"{what}: {p}: covers {rw[0]:g}-{rw[-1]:g} nm, not the bands "
                             f"{wavelengths[0]:g}-{wavelengths[-1]:g} nm")
-        return np.interp(wavelengths, rw, rv), file_record(p, what.strip("-"))
+        return np.interp(wavelengths, rw, rv), [file_record(p, what.strip("-"))]
     ref = read_cube(p, what.strip("-") + " reference")
     data = ref.data[..., order]
     if data.shape == shape:
-        return data, file_record(p, what.strip("-"))
+        return data, ref.records(what.strip("-"))
     if data.shape[:2] == (1, 1) and data.shape[2] == shape[2]:
-        return data[0, 0], file_record(p, what.strip("-"))
+        return data[0, 0], ref.records(what.strip("-"))
     raise UserError(f"{ref.path}: the {what} reference has shape {data.shape}; expected the cube's {shape} "
                     f"or a 1 x 1 x {shape[2]} spectrum")
 
@@ -240,16 +254,17 @@ def import_spectral(cubes, out, wavelengths=None, white=None, dark=None, white_r
             for d in data:
                 saturated |= np.any(d >= sat_level, axis=-1)
 
-        inputs = [file_record(c.path, "cube") for c in read]
+        inputs = [rec for c in read for rec in c.records("cube")]
         calib = {"saturation_level": sat_level}
         d_ref, calib["dark"] = (0.0, None) if dark is None else _reference(dark, "--dark", shape, wl, order)
-        if isinstance(calib["dark"], dict):
-            inputs.append(calib["dark"])
+        if isinstance(calib["dark"], list):
+            inputs += calib["dark"]
+            calib["dark"] = calib["dark"][-1]
         bad = np.zeros(shape[:2], dtype=bool)
         if white is not None:
-            w_ref, rec = _reference(white, "--white", shape, wl, order)
-            inputs.append(rec)
-            calib["white"] = rec
+            w_ref, recs = _reference(white, "--white", shape, wl, order)
+            inputs += recs
+            calib["white"] = recs[-1]
             span = w_ref - d_ref
             if np.ndim(span) == 1:
                 if np.any(span <= 0):
@@ -263,6 +278,7 @@ def import_spectral(cubes, out, wavelengths=None, white=None, dark=None, white_r
                 span = np.where(span > 0, span, 1.0)
             rho = reference_reflectance(white_reflectance, "--white-reflectance", wl)
             calib["white_reflectance"] = str(white_reflectance)
+            inputs += csv_records(white_reflectance, "white reflectance")
             scale = rho / span
             units = "reflectance"
         else:
