@@ -48,7 +48,10 @@ as it found it.
   the output is in place (and removed then). A second writer to the same ``--out`` stops at
   once with one line naming the first one's process id: two writers can never both
   succeed. A lock file of ours left by a killed process (its process gone from this host)
-  is taken over; anything else at that path is refused, never opened for writing.
+  is taken over; anything else at that path is refused, never opened for writing. Lock
+  files of ours that killed processes left elsewhere (beside a part being staged) are not
+  taken for someone else's files, and the stale-temporary clean-up removes them when their
+  process is gone from this host and nobody holds them.
 - **Stale temporaries.** A process killed with SIGKILL cannot clean up. The next output
   written into the same parent folder removes the temporary folders left there by processes
   that no longer exist: only folders of this module's name pattern that hold its record,
@@ -76,9 +79,14 @@ API for commands
     replaces one file atomically. The marker's ``entries`` are updated before each part is
     renamed into place, so an interrupted run never leaves a part the next run would
     mistake for someone else's files.
-``staging_path(part)`` and ``folder.adopt("tasks/0003", staged)``
-    A part written by another process (a Dask worker) at ``staging_path`` is moved into place
-    by the process that holds the folder.
+``staged = folder.staging_path("tasks/0003")`` and ``folder.adopt("tasks/0003", staged)``
+    A part written by another process (a Dask worker) at ``staged`` is moved into place by
+    the process that holds the folder, as soon as it is done. The part's parent folders are
+    listed in the marker before anything is written there, so that a run killed meanwhile
+    leaves nothing the next run would take for someone else's files; what was staged but
+    not adopted when the run ends (a signal) is removed by ``folder.discard_staged()`` (which
+    :func:`open_output_dir` calls on exit), and after SIGKILL by the next run, as a stale
+    temporary. (``staging_path(part)``, the module function, names one without any of this.)
 ``with atomic_output_files([stem.exr, stem.png], overwrite=..., inputs=...) as tmp_paths:``
     Files rather than a folder (``render``): ``tmp_paths[path]`` is where to write each;
     all are renamed into place together at the end.
