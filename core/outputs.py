@@ -48,7 +48,10 @@ as it found it.
   the output is in place (and removed then). A second writer to the same ``--out`` stops at
   once with one line naming the first one's process id: two writers can never both
   succeed. A lock file of ours left by a killed process (its process gone from this host)
-  is taken over; anything else at that path is refused, never opened for writing.
+  is taken over; anything else at that path is refused, never opened for writing. Lock
+  files of ours that killed processes left elsewhere (beside a part being staged) are not
+  taken for someone else's files, and the stale-temporary clean-up removes them when their
+  process is gone from this host and nobody holds them.
 - **Stale temporaries.** A process killed with SIGKILL cannot clean up. The next output
   written into the same parent folder removes the temporary folders left there by processes
   that no longer exist: only folders of this module's name pattern that hold its record,
@@ -76,9 +79,14 @@ API for commands
     replaces one file atomically. The marker's ``entries`` are updated before each part is
     renamed into place, so an interrupted run never leaves a part the next run would
     mistake for someone else's files.
-``staging_path(part)`` and ``folder.adopt("tasks/0003", staged)``
-    A part written by another process (a Dask worker) at ``staging_path`` is moved into place
-    by the process that holds the folder.
+``staged = folder.staging_path("tasks/0003")`` and ``folder.adopt("tasks/0003", staged)``
+    A part written by another process (a Dask worker) at ``staged`` is moved into place by
+    the process that holds the folder, as soon as it is done. The part's parent folders are
+    listed in the marker before anything is written there, so that a run killed meanwhile
+    leaves nothing the next run would take for someone else's files; what was staged but
+    not adopted when the run ends (a signal) is removed by ``folder.discard_staged()`` (which
+    :func:`open_output_dir` calls on exit), and after SIGKILL by the next run, as a stale
+    temporary. (``staging_path(part)``, the module function, names one without any of this.)
 ``with atomic_output_files([stem.exr, stem.png], overwrite=..., inputs=...) as tmp_paths:``
     Files rather than a folder (``render``): ``tmp_paths[path]`` is where to write each;
     all are renamed into place together at the end.
@@ -328,6 +336,57 @@ def _is_stale_temporary(path: Path) -> bool:
     is gone. Anything else named like one (a person's folder, a file) is not ours."""
     owner = _temporary_owner(path)
     return owner is not None and owner[1] == host_tag() and not _pid_alive(owner[0])
+
+
+_LOCK_RE = re.compile(r"^\..+\.lock$")
+
+
+def _lock_owner(path: Path):
+    """``(pid, host)`` that lock file ``path`` (``.NAME.lock``, a regular file, not a link)
+    names in our format, or None when it is anything else."""
+    if not _LOCK_RE.match(path.name):
+        return None
+    return _parse_lock(_read_own_file(path, 256))
+
+
+def _is_stale_lock(path: Path) -> bool:
+    """A lock file of ours (``.NAME.lock`` holding ``thinfilm-lock/1 PID HOST``) of this host
+    whose process is gone: what a killed command left."""
+    owner = _lock_owner(path)
+    return owner is not None and owner[1] == host_tag() and not _pid_alive(owner[0])
+
+
+def _remove_stale_lock(path: Path) -> bool:
+    """Remove lock file ``path`` when it is stale (:func:`_is_stale_lock`) and nobody holds
+    it (``flock``): never a file that is not ours, nor one being taken over meanwhile."""
+    import fcntl
+
+    if not _is_stale_lock(path):
+        return False
+    try:
+        fd = os.open(path, os.O_RDONLY | _NOFOLLOW | _CLOEXEC | getattr(os, "O_NONBLOCK", 0))
+    except OSError:
+        return False
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            return False
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            return False  # someone holds it: not stale after all
+        owner = _parse_lock(os.pread(fd, 256, 0))
+        if owner is None or owner[1] != host_tag() or _pid_alive(owner[0]):
+            return False
+        with signals.blocked():
+            if os.path.samestat(st, os.lstat(path)):
+                os.unlink(path)
+                return True
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+    return False
 
 
 def _in_stale_temporary(root: Path, rel: str) -> bool:
@@ -624,7 +683,7 @@ def _cmd(command) -> str:
 
 def _check_ours(out: Path, command, what: str = "out") -> None:
     """``out`` exists and is a folder: refuse unless empty or ours by the rule."""
-    entries = [p for p in out.iterdir() if not _is_stale_temporary(p)]
+    entries = [p for p in out.iterdir() if not (_is_stale_temporary(p) or _is_stale_lock(p))]
     if not entries:
         return
     marker = read_marker(out)
@@ -635,7 +694,8 @@ def _check_ours(out: Path, command, what: str = "out") -> None:
         raise UserError(f"holds the output of {_cmd(marker.get('command'))}, not of "
                         f"{_cmd(command)}; refusing to replace it", argument=what, value=out)
     known = set(marker["entries"])
-    foreign = sorted(e for e in _tree(out) if e not in known and not _in_stale_temporary(out, e))
+    foreign = sorted(e for e in _tree(out) if e not in known and not _in_stale_temporary(out, e)
+                     and not _is_stale_lock(out / e))
     if foreign:
         more = f" and {len(foreign) - 1} more" if len(foreign) > 1 else ""
         raise UserError(f"holds '{foreign[0].rstrip('/')}'{more}, which thinfilm did not "
@@ -826,7 +886,8 @@ def _acquire(out: Path, lock: Path, what: str) -> int:
 def clean_stale_temporaries(parent, keep=()) -> list:
     """Remove what killed processes left in folder ``parent``: temporary folders of this
     module's name pattern that hold our record (:data:`TEMP_MARKER`), of this host, whose
-    process is not running. Anything else named like one (a person's folder or file) is
+    process is not running, and lock files of ours (``.NAME.lock`` holding
+    ``thinfilm-lock/1 PID HOST``) of this host whose process is gone and that nobody holds. Anything else named like one (a person's folder or file) is
     never touched, nor are the paths in ``keep``. An old output that such a process had moved
     aside while swapping is moved back when nothing took its place. Returns the paths
     removed or restored."""
@@ -838,7 +899,12 @@ def clean_stale_temporaries(parent, keep=()) -> list:
     except OSError:
         return done
     for p in children:
-        if p in keep or not _is_stale_temporary(p):
+        if p in keep:
+            continue
+        if _LOCK_RE.match(p.name) and _remove_stale_lock(p):
+            done.append(p)
+            continue
+        if not _is_stale_temporary(p):
             continue
         name = _TEMP_RE.match(p.name)["name"]
         target, aside = parent / name, p / f"{name}.old"
@@ -934,6 +1000,7 @@ class OutputFolder:
         self.command = command
         marker = read_marker(path)
         self._entries = set(marker["entries"]) if marker else set()
+        self._staged = []
 
     @property
     def entries(self) -> frozenset:
@@ -1001,21 +1068,51 @@ class OutputFolder:
             raise
         _rmtree_opt(holder)
 
+    def staging_path(self, rel) -> Path:
+        """A fresh :func:`staging_path` for part ``rel``, its parent folders made first and
+        listed in the marker (so that a run killed while another process writes there leaves
+        nothing the next run would take for someone else's files). Paths handed out are
+        removed by :meth:`discard_staged` unless adopted."""
+        rel = self._rel(rel)
+        try:
+            target = self._prepare_parent(rel)
+        except OSError as e:
+            raise UserError(f"cannot write the output ({_reason(e)})", argument="out", value=self.path) from None
+        staged = staging_path(target)
+        self._staged.append(staged)
+        return staged
+
+    def discard_staged(self) -> None:
+        """Remove what the staging paths of :meth:`staging_path` still hold (parts written
+        but not adopted: the run was interrupted), and what the processes that wrote there
+        left beside them once they are gone (their temporaries and locks). Only temporaries
+        of ours are removed: of this process, or of processes gone from this host."""
+        me = (os.getpid(), host_tag())
+        with signals.blocked():
+            for staged in self._staged:
+                if os.path.lexists(staged) and (_temporary_owner(staged) == me or _is_stale_temporary(staged)):
+                    _rmtree(staged)
+            for parent in dict.fromkeys(s.parent for s in self._staged):
+                clean_stale_temporaries(parent)
+        self._staged = []
+
     def adopt(self, rel, staged) -> Path:
         """Move folder ``staged`` into place as part ``rel`` in one step, the marker listing
         its contents. ``staged`` was written elsewhere, by another process (a Dask worker), at
         :func:`staging_path` of the part: until it is adopted it is a temporary folder that
-        the stale-temporary cleanup removes once its process is gone."""
+        the stale-temporary cleanup removes once its process is gone. Its record goes only
+        after it is in place (listed meanwhile), so that it is never, even for a moment, a
+        folder of no one's."""
         rel = self._rel(rel)
         staged = Path(staged)
         holder = None
         try:
             target = self._prepare_parent(rel, keep=(staged,))
-            if _temporary_owner(staged) is not None:  # its record: it becomes a part of ours now
-                os.unlink(staged / TEMP_MARKER)
+            owned = _temporary_owner(staged) is not None  # its record: it becomes a part of ours now
             holder = _make_temporary(target.parent, target.name)
             os.chmod(staged, _dir_mode())
             inside = _tree(staged) | ({MARKER} if (staged / MARKER).is_file() else set())  # its own marker too
+            record = f"{rel}/{TEMP_MARKER}"
             self._entries |= {rel + "/"} | {f"{rel}/{e}" for e in inside}
             _write_marker(self.path, self.command, self._entries)
             try:
@@ -1023,6 +1120,12 @@ class OutputFolder:
             except _OldKept as e:
                 raise UserError(_kept_message(e, f"old copy of '{rel}'", None), argument="out",
                                 value=self.path) from None
+            if staged in self._staged:
+                self._staged.remove(staged)
+            if owned:
+                os.unlink(target / TEMP_MARKER)
+                self._entries.discard(record)
+                _write_marker(self.path, self.command, self._entries)
         except OSError as e:
             raise UserError(f"cannot write the output ({_reason(e)})", argument="out", value=self.path) from None
         finally:
@@ -1052,6 +1155,26 @@ class OutputFolder:
     def write_text(self, rel, text: str) -> Path:
         """Replace text file ``rel`` atomically (UTF-8)."""
         return self.write_bytes(rel, text.encode("utf-8"))
+
+
+def _tidy_marker(out: Path, command) -> None:
+    """Bring the marker of an output written in place up to date after a run that was killed:
+    a part's record of a temporary left inside it (killed just after moving it into place) is
+    removed, and entries of what is not there (listed just before a move that never came) are
+    dropped; a folder without a marker gets an empty one."""
+    marker = read_marker(out)
+    if marker is None:
+        _write_marker(out, command, ())
+        return
+    entries = set(marker["entries"])
+    records = {e for e in entries if e.endswith("/" + TEMP_MARKER)}
+    for e in records:
+        path = out / e
+        if not _in_stale_temporary(out, e) and path.is_file() and not path.is_symlink():
+            path.unlink()
+    kept = {e for e in entries - records if os.path.lexists(out / e.rstrip("/"))}
+    if kept != entries:
+        _write_marker(out, marker.get("command", command), kept)
 
 
 def staging_path(target) -> Path:
@@ -1084,11 +1207,14 @@ def open_output_dir(out, *, command=None, inputs=()):
                     os.chmod(out, _dir_mode())
                 for dirpath, _, _ in os.walk(out, followlinks=False):
                     clean_stale_temporaries(dirpath)
-                if read_marker(out) is None:
-                    _write_marker(out, command, ())
+                _tidy_marker(out, command)
             except OSError as e:
                 raise UserError(f"cannot create the folder ({_reason(e)})", argument="out", value=out) from None
-            yield OutputFolder(out, command)
+            folder = OutputFolder(out, command)
+            try:
+                yield folder
+            finally:
+                folder.discard_staged()
     except BaseException:
         if fresh and out.exists() and read_marker(out) is not None and not (
                 set(p.name for p in out.iterdir()) - {MARKER}):

@@ -22,7 +22,8 @@ from __future__ import annotations
 
 import signal
 
-__all__ = ["NAMES", "Terminated", "install", "received", "reset", "exit_code", "blocked", "deferred"]
+__all__ = ["NAMES", "Terminated", "install", "received", "check_received", "reset", "exit_code", "blocked",
+           "deferred"]
 
 #: the signals an entry point turns into exceptions (each cleans up like SIGTERM, SIGINT aside)
 NAMES = ("SIGINT", "SIGTERM", "SIGHUP", "SIGQUIT")
@@ -102,6 +103,15 @@ def install() -> None:
 def received() -> int | None:
     """The signal number that arrived since :func:`install` (or :func:`reset`), or None."""
     return _received
+
+
+def check_received() -> None:
+    """Raise the exception of the signal received since :func:`install` (``KeyboardInterrupt``
+    or :class:`Terminated`), if one arrived. For ``except Exception`` clauses that record a
+    failure and go on: a signal that a library turned into an error of its own stops the
+    command instead of passing for a failure of one task."""
+    if _received is not None:
+        _raise(_received)
 
 
 def reset() -> None:

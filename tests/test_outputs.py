@@ -146,6 +146,43 @@ def test_stale_temporaries_only_ours_only_dead(tmp_path):
     assert (unmarked / "thesis.tex").read_text() == "mine"
 
 
+def test_stale_locks_only_ours_only_dead_only_unheld(tmp_path):
+    host, dead = outputs.host_tag(), _dead_pid()
+    out = tmp_path / "out"
+    _write(out, {"a.txt": "1"})
+    outputs._write_marker(out, "example", {"a.txt"})
+    stale = out / ".part.lock"
+    stale.write_text(f"thinfilm-lock/1 {dead} {host}\n")
+    check_output_dir(out, command="example")  # a killed command's lock is not someone else's file
+    live = out / ".live.lock"
+    live.write_text(f"thinfilm-lock/1 {os.getpid()} {host}\n")
+    elsewhere = out / ".far.lock"
+    elsewhere.write_text(f"thinfilm-lock/1 {dead} elsewhere\n")
+    mine = out / ".notes.lock"
+    mine.write_text("my own notes")
+    # a live process's lock, another host's, a person's file of that name: not stale
+    with pytest.raises(UserError, match=r"holds '\.far\.lock' and 2 more"):
+        check_output_dir(out, command="example")
+    assert clean_stale_temporaries(out) == [stale]
+    assert _names(out) == sorted([MARKER, "a.txt", live.name, elsewhere.name, mine.name])
+
+
+def test_parts_staged_for_another_process_are_listed_adopted_or_removed(tmp_path):
+    out = tmp_path / "out"
+    with open_output_dir(out, command="example") as folder:
+        a, b = folder.staging_path("tasks/c1/a"), folder.staging_path("tasks/c1/b")
+        # the folders that hold them are the output's before anything is written there
+        assert {"tasks/", "tasks/c1/"} <= set(read_marker(out)["entries"]) and (out / "tasks" / "c1").is_dir()
+        for staged in (a, b):
+            with atomic_output_dir(staged, command="part") as tmp:
+                _write(tmp, {"r.txt": staged.name})
+        folder.adopt("tasks/c1/a", a)
+    # b was written but not adopted (an interrupted run): removed, and a holds no record
+    assert _names(out / "tasks" / "c1") == ["a"] and _names(out / "tasks" / "c1" / "a") == [MARKER, "r.txt"]
+    assert f"tasks/c1/a/{TEMP_MARKER}" not in read_marker(out)["entries"]
+    check_output_dir(out, command="example")
+
+
 def test_an_old_output_moved_aside_by_a_killed_swap_is_moved_back(tmp_path):
     holder = tmp_path / f".out.tmp-{_dead_pid()}@{outputs.host_tag()}-abcd1234"
     with atomic_output_dir(holder / "out.old", command="x") as tmp:

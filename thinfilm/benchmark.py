@@ -50,6 +50,7 @@ import time
 import traceback
 from pathlib import Path
 
+from thinfilm.core import signals
 from thinfilm.core.errors import UserError
 from thinfilm.suites import QUICK_RESOLUTION
 
@@ -259,12 +260,13 @@ def _evaluate(dataset: Path, estimate: Path, out: Path, figures: bool = True) ->
 
 def _method_task(generated: dict, root: str, case_id: str, kind: str, method: str, role: str, source: str,
                  folder: str, key: str, name: str | None = None, figures: bool = True,
-                 mosaic: bool = False) -> dict:
+                 mosaic: bool = False, staged: str | None = None) -> dict:
     """Reconstruct and score one case with one method (``method``: a registry name or
     ``package.module:function``, None for the ground truth; ``name``: its registry name),
     reading ``root/datasets/case_id``. The task folder is written atomically (``task.json``
-    last) at a staging path beside ``root/folder`` (:func:`thinfilm.core.outputs.staging_path`),
-    for the benchmark's process to move into place; returns the result row with ``staged``."""
+    last) at ``staged``, a staging path beside ``root/folder`` that the benchmark's process
+    hands out (:meth:`thinfilm.core.outputs.OutputFolder.staging_path`; one of this process's
+    when None), for that process to move into place; returns the result row with ``staged``."""
     from thinfilm.core.io import write_json
     from thinfilm.core.outputs import atomic_output_dir, staging_path
 
@@ -279,7 +281,7 @@ def _method_task(generated: dict, root: str, case_id: str, kind: str, method: st
         row.update(status="failed", error=f"dataset not generated: {generated.get('error')}",
                    traceback=generated.get("traceback", ""))
         return row
-    staged = staging_path(root / folder)
+    staged = Path(staged) if staged is not None else staging_path(root / folder)
     with atomic_output_dir(staged, command="benchmark-task", inputs=[dataset]) as tmp:
         try:
             t0 = time.perf_counter()
@@ -293,6 +295,7 @@ def _method_task(generated: dict, root: str, case_id: str, kind: str, method: st
             row["evaluate_s"] = round(time.perf_counter() - t0, 2)
             row["status"] = "ok"
         except Exception as e:  # one failing method must not hide the others
+            signals.check_received()  # unless it is a signal that a library turned into an error
             row.update(status="failed", error=f"{type(e).__name__}: {e}".splitlines()[0],
                        traceback=traceback.format_exc(limit=6))
         write_json(tmp / "task.json", {"format": TASK_FORMAT, "key": key, "row": row})
@@ -315,6 +318,7 @@ def _import_task(root: str, case_id: str, staged: str) -> dict:
                             camera=meta["camera"], illuminant=meta["illuminant"], film_ior=meta["film_ior"],
                             substrate_ior=meta["substrate_ior"], pixel_size=meta["projection"]["pixel_size"])
     except Exception as e:
+        signals.check_received()
         return {"status": "failed", "error": f"{type(e).__name__}: {e}".splitlines()[0],
                 "traceback": traceback.format_exc(limit=6)}
     return {"status": "ok", "staged": staged}
@@ -370,7 +374,7 @@ def run_benchmark(out, suite="presets", quick=False, methods=None, resolution=No
         Write each evaluation's PNG figures (about 2 s a task) and show them in the report.
     """
     from thinfilm.cluster import Task, executor, generate_task, run_tasks
-    from thinfilm.core.outputs import OutputFolder, atomic_output_dir, open_output_dir, staging_path
+    from thinfilm.core.outputs import OutputFolder, atomic_output_dir, open_output_dir
 
     t_start = time.perf_counter()
     plan = plan_benchmark(suite, quick=quick, methods=methods, resolution=resolution)
@@ -382,12 +386,15 @@ def run_benchmark(out, suite="presets", quick=False, methods=None, resolution=No
            else atomic_output_dir(out, command="benchmark", inputs=inputs))
     with ctx as handle:
         folder = handle if resume else OutputFolder(handle, "benchmark")
-        return _run(folder, plan, suite, resume, workers, scheduler, progress, baseline, figures, t_start,
-                    Task, executor, generate_task, run_tasks, staging_path)
+        try:
+            return _run(folder, plan, suite, resume, workers, scheduler, progress, baseline, figures, t_start,
+                        Task, executor, generate_task, run_tasks)
+        finally:
+            folder.discard_staged()  # what an interrupted run had not moved into place yet
 
 
 def _run(folder, plan, suite, resume, workers, scheduler, progress, baseline, figures, t_start,
-         Task, executor, generate_task, run_tasks, staging_path) -> dict:
+         Task, executor, generate_task, run_tasks) -> dict:
     root = folder.path
     folder.write_text("benchmark.json", json.dumps({
         "format": FORMAT, "suite": suite.as_dict(), "quick": plan["quick"], "resolution": plan["resolution"],
@@ -401,13 +408,14 @@ def _run(folder, plan, suite, resume, workers, scheduler, progress, baseline, fi
         else:
             todo.append(t)
     cases = [c for c in plan["cases"] if any(t["case"] is c for t in todo)]
-    # phase 1: the datasets the remaining tasks need (each written aside, then moved into place)
+    # phase 1: the datasets the remaining tasks need (each written aside, then moved into place);
+    # every part is moved into place as soon as it is done, so an interrupted run keeps it
     gen_tasks = []
     for case in cases:
         if resume and _finished_dataset(root / "datasets" / case.id, case.spec):
             generated[case.id] = {"status": "ok", "resumed": True}
         else:
-            staged = staging_path(root / "datasets" / case.id)
+            staged = folder.staging_path(f"datasets/{case.id}")
             gen_tasks.append(Task(f"generate/{case.id}", generate_task, (case.spec, str(staged)),
                                   label=f"generate {case.id}"))
     method_tasks = [Task(t["folder"], _method_task,
@@ -415,37 +423,45 @@ def _run(folder, plan, suite, resume, workers, scheduler, progress, baseline, fi
                           "noise floor" if t["method"] is None else t["method"].role,
                           "thinfilm" if t["method"] is None else t["method"].source,
                           t["folder"], t["key"], None if t["method"] is None else t["method"].name, figures,
-                          bool(t.get("mosaic"))),
+                          bool(t.get("mosaic")), None),
                          label=f"{t['case'].id}: {t['label']}") for t in todo]
     mosaic_cases = sorted({t["case"].id for t in todo if t.get("mosaic")})
     execution = {"mode": "nothing to run", "workers": 0}
+
+    def adopt_dataset(task, value):
+        case_id = task.key.split("/", 1)[1]
+        if value.get("status") == "ok":
+            folder.adopt(f"datasets/{case_id}{'-mosaic' if task.key.startswith('import/') else ''}",
+                         value.pop("staged"))
+
+    def adopt_task(task, value):
+        staged = value.pop("staged", None) if isinstance(value, dict) else None
+        if staged:
+            folder.adopt(task.key, staged)
+
     if gen_tasks or method_tasks:
         with executor(workers, scheduler, max_workers=max(len(gen_tasks), len(method_tasks), 1)) as ex:
-            for key, value in run_tasks(gen_tasks, ex, progress=progress, desc="datasets").items():
-                case_id = key.split("/", 1)[1]
-                if value.get("status") == "ok":
-                    folder.adopt(f"datasets/{case_id}", value.pop("staged"))
-                generated[case_id] = value
+            for key, value in run_tasks(gen_tasks, ex, on_result=adopt_dataset, progress=progress,
+                                        desc="datasets").items():
+                generated[key.split("/", 1)[1]] = value
             # phase 2: the raw sensor images imported, where a scene has one
             imports = [Task(f"import/{c}", _import_task,
-                            (str(root), c, str(staging_path(root / "datasets" / f"{c}-mosaic"))),
+                            (str(root), c, str(folder.staging_path(f"datasets/{c}-mosaic"))),
                             label=f"import {c}") for c in mosaic_cases
                        if generated.get(c, {"status": "ok"}).get("status") == "ok"]
             imported = {}
-            for key, value in run_tasks(imports, ex, progress=progress, desc="imports").items():
-                c = key.split("/", 1)[1]
-                if value.get("status") == "ok":
-                    folder.adopt(f"datasets/{c}-mosaic", value.pop("staged"))
-                imported[c] = value
-            for task in method_tasks:  # each task learns how its dataset went
-                state = generated.get(task.args[2], {"status": "ok"})
-                if task.args[-1] and state.get("status") == "ok":  # through the mosaic
-                    state = imported.get(task.args[2], {"status": "failed", "error": "not imported"})
-                task.args = (state,) + task.args[1:]
-            for key, value in run_tasks(method_tasks, ex, progress=progress, desc="benchmark").items():
-                staged = value.pop("staged", None) if isinstance(value, dict) else None
-                if staged:
-                    folder.adopt(key, staged)
+            for key, value in run_tasks(imports, ex, on_result=adopt_dataset, progress=progress,
+                                        desc="imports").items():
+                imported[key.split("/", 1)[1]] = value
+            for task in method_tasks:  # each task learns how its dataset went, and where to write
+                case_id, mosaic = task.args[2], task.args[11]
+                state = generated.get(case_id, {"status": "ok"})
+                if mosaic and state.get("status") == "ok":  # through the mosaic
+                    state = imported.get(case_id, {"status": "failed", "error": "not imported"})
+                staged = str(folder.staging_path(task.key)) if state.get("status") == "ok" else None
+                task.args = (state,) + task.args[1:12] + (staged,)
+            for key, value in run_tasks(method_tasks, ex, on_result=adopt_task, progress=progress,
+                                        desc="benchmark").items():
                 rows[key] = value
             execution = ex.describe()
     n_cases = len(gen_tasks)

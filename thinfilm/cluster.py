@@ -31,6 +31,7 @@ import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from thinfilm.core import signals
 from thinfilm.core.errors import UserError
 
 __all__ = ["Dep", "Task", "Executor", "default_workers", "executor", "run_tasks", "generate_task"]
@@ -134,16 +135,22 @@ def executor(workers: int | None = None, scheduler: str | None = None, max_worke
     from distributed import Client, LocalCluster
 
     threads = max(1, default_workers() // n) if worker_threads is None else max(1, int(worker_threads))
-    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
-                           host="127.0.0.1", silence_logs=logging.ERROR)
+    # The cluster is started and closed whole, a signal meanwhile deferred to the end of the
+    # step: a cluster half started or half closed would leave its worker processes and the
+    # semaphores of their queues behind.
+    cluster = client = None
     try:
-        client = Client(cluster)
-        try:
-            yield Executor(client, n, None, threads)
-        finally:
-            client.close()
+        with signals.deferred():
+            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+                                   host="127.0.0.1", silence_logs=logging.ERROR)
+            client = Client(cluster)
+        yield Executor(client, n, None, threads)
     finally:
-        cluster.close()
+        with signals.deferred():
+            if client is not None:
+                client.close()
+            if cluster is not None:
+                cluster.close()
 
 
 #: seconds the connection to ``--scheduler`` may take, including the scheduler's first answer
@@ -252,6 +259,7 @@ def run_tasks(tasks, ex: Executor, on_result=None, progress: bool = False, desc:
                     except (KeyboardInterrupt, UserError):
                         raise
                     except Exception as e:
+                        signals.check_received()  # a signal turned into another error by a library
                         results[task.key] = _failure(e)
                     if on_result is not None:
                         on_result(task, results[task.key])
@@ -278,6 +286,7 @@ def run_tasks(tasks, ex: Executor, on_result=None, progress: bool = False, desc:
             except KeyboardInterrupt:
                 raise
             except Exception as e:
+                signals.check_received()
                 results[task.key] = _failure(e)
             if on_result is not None:
                 on_result(task, results[task.key])
@@ -303,6 +312,7 @@ def generate_task(spec, folder: str) -> dict:
         use_variant()
         generate_dataset(spec, folder, progress=False)
     except Exception as e:
+        signals.check_received()  # in this process, a signal that a library turned into an error
         return _failure(e)
     return {"status": "ok", "generate_s": round(time.perf_counter() - t0, 2), "staged": folder}
 

@@ -112,9 +112,7 @@ def run_sweep(sweep_path, count: int, seed: int, out, overrides=(), resolution=N
     dict with ``datasets`` (folder names), ``generated``, ``resumed``, ``failed``
     (``{folder: error}``), ``seconds`` and ``execution``.
     """
-    from thinfilm.cluster import Task, executor, generate_task, run_tasks
-    from thinfilm.core.io import read_json
-    from thinfilm.core.outputs import OutputFolder, atomic_output_dir, open_output_dir, staging_path
+    from thinfilm.core.outputs import OutputFolder, atomic_output_dir, open_output_dir
 
     t0 = time.perf_counter()
     path = Path(sweep_path).expanduser().resolve()
@@ -126,32 +124,47 @@ def run_sweep(sweep_path, count: int, seed: int, out, overrides=(), resolution=N
            else atomic_output_dir(out, command="sweep", inputs=[path]))
     with ctx as handle:
         folder = handle if resume else OutputFolder(handle, "sweep")
-        root = folder.path
-        if resume and (root / "sweep.json").is_file():
-            old = read_json(root / "sweep.json")
-            if not (isinstance(old, dict) and all(old.get(k) == marker[k] for k in ("sweep", "seed", "format"))):
-                raise UserError(f"--resume: {root} holds another sweep or seed; resume with the same "
-                                f"sweep and --seed, or drop --resume to replace it")
-        folder.write_text("sweep.json", json.dumps(marker, indent=2, sort_keys=True) + "\n")
-        tasks, resumed = [], 0
-        for name, spec, _ in plan:
-            if resume and _finished(root / name, spec):
-                resumed += 1
-                continue
-            tasks.append(Task(name, generate_task, (spec, str(staging_path(root / name))), label=name))
-        done, execution = {}, {"mode": "nothing to run", "workers": 0}
-        if tasks:
-            with executor(workers, scheduler, max_workers=len(tasks)) as ex:
-                done = run_tasks(tasks, ex, progress=progress, desc="sweep")
-                execution = ex.describe()
-        for name, value in done.items():
-            if value.get("status") == "ok":
-                folder.adopt(name, value.pop("staged"))
+        try:
+            tasks, done, execution, resumed = _generate(folder, plan, marker, resume, workers, scheduler, progress)
+        finally:
+            folder.discard_staged()  # what an interrupted run had not moved into place yet
         failed = {k: v.get("error", "?") for k, v in done.items() if v.get("status") != "ok"}
         if not failed:
             folder.write_text("index.csv", index_csv(plan))
     return {"datasets": [p[0] for p in plan], "generated": len(tasks) - len(failed), "resumed": resumed,
             "failed": failed, "seconds": time.perf_counter() - t0, "execution": execution}
+
+
+def _generate(folder, plan, marker, resume, workers, scheduler, progress):
+    """Generate the datasets of ``plan`` that are not there yet into output ``folder``, each
+    moved into place as soon as it is done (so an interrupted run keeps it)."""
+    from thinfilm.cluster import Task, executor, generate_task, run_tasks
+    from thinfilm.core.io import read_json
+
+    root = folder.path
+    if resume and (root / "sweep.json").is_file():
+        old = read_json(root / "sweep.json")
+        if not (isinstance(old, dict) and all(old.get(k) == marker[k] for k in ("sweep", "seed", "format"))):
+            raise UserError(f"--resume: {root} holds another sweep or seed; resume with the same "
+                            f"sweep and --seed, or drop --resume to replace it")
+    folder.write_text("sweep.json", json.dumps(marker, indent=2, sort_keys=True) + "\n")
+    tasks, resumed = [], 0
+    for name, spec, _ in plan:
+        if resume and _finished(root / name, spec):
+            resumed += 1
+            continue
+        tasks.append(Task(name, generate_task, (spec, str(folder.staging_path(name))), label=name))
+
+    def adopt(task, value):
+        if value.get("status") == "ok":
+            folder.adopt(task.key, value.pop("staged"))
+
+    done, execution = {}, {"mode": "nothing to run", "workers": 0}
+    if tasks:
+        with executor(workers, scheduler, max_workers=len(tasks)) as ex:
+            done = run_tasks(tasks, ex, on_result=adopt, progress=progress, desc="sweep")
+            execution = ex.describe()
+    return tasks, done, execution, resumed
 
 
 def _finished(folder: Path, spec) -> bool:
