@@ -149,8 +149,8 @@ def test_stale_temporaries_only_ours_only_dead(tmp_path):
 def test_stale_locks_only_ours_only_dead_only_unheld(tmp_path):
     host, dead = outputs.host_tag(), _dead_pid()
     out = tmp_path / "out"
-    _write(out, {"a.txt": "1"})
-    outputs._write_marker(out, "example", {"a.txt"})
+    with atomic_output_dir(out, command="example") as tmp:
+        _write(tmp, {"a.txt": "1"})
     stale = out / ".part.lock"
     stale.write_text(f"thinfilm-lock/1 {dead} {host}\n")
     check_output_dir(out, command="example")  # a killed command's lock is not someone else's file
