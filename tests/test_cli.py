@@ -75,7 +75,7 @@ def test_render_xml_example(tmp_path):
     (["render", "missing.xml", "--out", "x"], "missing.xml: scene file not found"),
     (["render", "{scene}", "--out", "x", "--variant", "nope"], "unknown Mitsuba variant 'nope'"),
     (["render", "{scene}", "--out", "x", "--exposure", "-2"], "--exposure: expected 'auto' or a positive number"),
-    (["render", "{bad}", "--out", "x", "--variant", "llvm_ad_mono_polarized"], "'thickness' must be >= 0"),
+    (["render", "{bad}", "--out", "x", "--variant", "llvm_ad_mono_polarized"], "'thickness' must be a finite number from 0 to 100000 nm, got -1.0"),
 ])
 def test_bad_input_one_line_exit_2(tmp_path, capsys, argv, message):
     scene = _small_scene(tmp_path)

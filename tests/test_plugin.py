@@ -182,7 +182,7 @@ def test_wavelength_sweep_reuses_compiled_kernel(variant_llvm_ad_mono_polarized)
     ({"thickness": -5.0}, "'thickness' must be a finite number from 0 to 100000 nm, got -5.0"),
     ({"film_ior": 0.0}, "'film_ior' must be a finite number from 0.01 to 100, got 0.0"),
     ({"substrate_ior": -1.6}, "'substrate_ior' must be a finite number from 0.01 to 100, got -1.6"),
-    ({"substrate_k": -0.1}, "'substrate_k' must be a finite number from 0 to 100, got -0.1"),
+    ({"substrate_k": -0.1}, "'substrate_k' must be a finite number from 0 to 1000000, got -0.1"),
     ({"film_ior": "unobtainium"}, "unknown material 'unobtainium'"),
     ({"wavelength": 0.0}, "'wavelength' must be a finite number from 1 to 100000 nm, got 0.0"),
 ])
@@ -304,7 +304,7 @@ def test_out_of_range_parameters_are_one_line_naming_them(variant_llvm_ad_mono_p
     ({"alpha": float("inf")}, "parameter 'alpha' must be a finite number from 0 to 1, got inf"),
     ({"alpha_u": 0.1, "alpha_v": float("nan")}, "parameter 'alpha_v' must be a finite number from 0 to 1, got nan"),
     ({"substrate_ior": float("inf")}, "parameter 'substrate_ior' must be a finite number from 0.01 to 100, got inf"),
-    ({"substrate_k": 1e3}, "parameter 'substrate_k' must be a finite number from 0 to 100, got 1000.0"),
+    ({"substrate_k": 1e7}, "parameter 'substrate_k' must be a finite number from 0 to 1000000, got 10000000.0"),
     ({"wavelength": float("nan")}, "parameter 'wavelength' must be a finite number from 1 to 100000 nm, got nan"),
 ])
 def test_out_of_range_surface_parameters_are_one_line_naming_them(variant_llvm_ad_mono_polarized, bad, message):

@@ -6,7 +6,8 @@ Each range is ``(low, high)``, inclusive, and every value must be finite:
 * thickness: 0 to 100 µm. A film of 100 µm is no longer thin, and Mitsuba's single-precision
   floats keep the film's phase (``4π n d cos θ / λ``, about 10⁴ rad there) to about 10⁻³ rad;
   far beyond it the phase, and so the colour, is noise.
-* refractive index ``n``: 0.01 to 100; extinction ``k``: 0 to 100.
+* refractive index ``n``: 0.01 to 100; extinction ``k``: 0 to 100 (a substrate's up to 10⁶: a very
+  large k models an ideal mirror).
 * microfacet roughness ``alpha`` (``alpha_u``, ``alpha_v``): 0 (smooth) to 1, as the scene
   spec's ``film.roughness``. Past 1 the GGX and Beckmann lobes are no longer glossy
   reflection but a nearly uniform haze, which ``diffuse`` models better.
@@ -15,12 +16,14 @@ Each range is ``(low, high)``, inclusive, and every value must be finite:
   (:data:`MAX_STACK_LAYERS`, where the cost per layer is measured).
 """
 
-__all__ = ["THICKNESS_NM", "INDEX", "EXTINCTION", "ALPHA", "WAVELENGTH_NM", "MAX_STACK_LAYERS",
+__all__ = ["THICKNESS_NM", "INDEX", "EXTINCTION", "SUBSTRATE_EXTINCTION", "ALPHA", "WAVELENGTH_NM", "MAX_STACK_LAYERS",
            "MAX_STACK_LAYERS_SPECTRAL", "MAX_STACK_LAYERS_RGB", "max_stack_layers"]
 
 THICKNESS_NM = (0.0, 1e5)
 INDEX = (0.01, 100.0)
 EXTINCTION = (0.0, 100.0)
+#: a substrate may be far more absorbing than a film: a very large k models an ideal mirror
+SUBSTRATE_EXTINCTION = (0.0, 1e6)
 ALPHA = (0.0, 1.0)
 WAVELENGTH_NM = (1.0, 1e5)
 

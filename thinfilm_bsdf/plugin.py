@@ -177,7 +177,7 @@ class _ThinFilmMixin:
 
         self.m_film = Film(props)
         self.m_substrate_ior = mi.Float(checked_float(props, "substrate_ior", 1.6, limits.INDEX))
-        self.m_substrate_k = mi.Float(checked_float(props, "substrate_k", 0.0, limits.EXTINCTION))
+        self.m_substrate_k = mi.Float(checked_float(props, "substrate_k", 0.0, limits.SUBSTRATE_EXTINCTION))
         self.m_ext_ior = mi.Float(checked_float(props, "ext_ior", 1.0, limits.INDEX))
         self.m_wavelength = mi.Float(checked_float(props, "wavelength", 550.0, limits.WAVELENGTH_NM,
                                                    unit="nm"))
@@ -210,7 +210,7 @@ class _ThinFilmMixin:
     def parameters_changed(self, keys=[]):
         check_parameters("thinfilm", self.m_film.checks() + self.m_rough.checks() + [
             ("substrate_ior", self.m_substrate_ior, limits.INDEX),
-            ("substrate_k", self.m_substrate_k, limits.EXTINCTION),
+            ("substrate_k", self.m_substrate_k, limits.SUBSTRATE_EXTINCTION),
             ("ext_ior", self.m_ext_ior, limits.INDEX),
             ("wavelength", self.m_wavelength, limits.WAVELENGTH_NM),
         ])
