@@ -134,48 +134,21 @@ def pixel_bound(rig, film, normals, thickness_nm, noise: dict, capture: str, bac
                                rig.dome_hole_deg).light
     x = np.concatenate([double_angle_from_normals(normals), d], axis=1)
     kind = "polarized_rgb" if capture == "polarized_rgb" else "stokes"
-    vals, jac = [], []
-    for s in range(0, N, chunk):
-        v, j = model.evaluate(kind, x[s:s + chunk], "double_angle", fixed={"light": light[s:s + chunk]},
-                              derivatives=True)
-        vals.append(v)
-        jac.append(j)
-    vals, jac = np.concatenate(vals), np.concatenate(jac)
     angles = np.radians(np.asarray(rig.polarizer_angles_deg, dtype=np.float64))
+    design = stokes_design_matrix(np.degrees(angles))                      # (A, 3): I = design @ S
+    B = len(rig.wavelengths_nm)
+    # the exposures first: each image's brightest object pixel (values alone, every pixel)
+    vals = np.concatenate([model.evaluate(kind, x[s:s + chunk], "double_angle", fixed={"light": light[s:s + chunk]})
+                           for s in range(0, N, chunk)])
     if capture == "polarized_rgb":
-        A = angles.size
-        imgs = vals.reshape(N, A, 3).transpose(1, 0, 2)                     # (A, N, 3)
-        var = capture_variance(imgs, _gains(imgs, noise), noise)           # (A, N, 3)
-        J = jac.reshape(N, A * 3, -1)
-        w = 1.0 / var.transpose(1, 0, 2).reshape(N, A * 3)
+        imgs = vals.reshape(N, -1, 3).transpose(1, 0, 2)                   # (A, N, 3)
+        gains = _gains(imgs, noise)                                        # (A,)
     else:
-        B = len(rig.wavelengths_nm)
-        S = vals.reshape(N, 3, B)
-        dS = jac.reshape(N, 3, B, -1)
-        design = stokes_design_matrix(np.degrees(angles))                  # (A, 3): I = design @ S
-        imgs = np.einsum("ak,nkb->anb", design, S)                         # (A, N, B)
-        var = np.stack([capture_variance(imgs[:, :, b], _gains(imgs[:, :, b], noise), noise)
-                        for b in range(B)], axis=2)                        # (A, N, B)
-        if capture == "stokes":
-            J = np.einsum("ak,nkbp->nabp", design, dS).reshape(N, -1, dS.shape[-1])
-            w = 1.0 / var.transpose(1, 0, 2).reshape(N, -1)
-        else:
-            # s = S0 + |(S1, S2)| of the fitted Stokes vector: its derivatives by the images
-            fit = np.linalg.pinv(design)                                   # (3, A)
-            lin = np.hypot(S[:, 1], S[:, 2])                               # (N, B)
-            safe = np.where(lin > 0, lin, 1.0)
-            u1, u2 = np.where(lin > 0, S[:, 1] / safe, 0.0), np.where(lin > 0, S[:, 2] / safe, 0.0)
-            ds_dI = fit[0][:, None, None] + u1[None] * fit[1][:, None, None] + u2[None] * fit[2][:, None, None]
-            var_s = np.sum(ds_dI ** 2 * var, axis=0)                      # (N, B)
-            J = dS[:, 0] + u1[:, :, None] * dS[:, 1] + u2[:, :, None] * dS[:, 2]
-            w = 1.0 / var_s
-            # s does not depend on the azimuth: its information is in (|v|, d) alone
-            u = np.hypot(x[:, 0], x[:, 1])
-            safe_u = np.where(u > 0, u, 1.0)
-            cos2, sin2 = np.where(u > 0, x[:, 0] / safe_u, 1.0), np.where(u > 0, x[:, 1] / safe_u, 0.0)
-            J = np.concatenate([(J[:, :, 0] * cos2[:, None] + J[:, :, 1] * sin2[:, None])[:, :, None],
-                                J[:, :, 2:]], axis=2)
-    F = np.einsum("nmp,nm,nmq->npq", J, w, J)
+        imgs = np.einsum("ak,nkb->anb", design, vals.reshape(N, 3, B))     # (A, N, B)
+        gains = np.stack([_gains(imgs[:, :, b], noise) for b in range(B)], axis=1)  # (A, B)
+    del vals, imgs
+    F = np.concatenate([_fisher(model, kind, capture, x[s:s + chunk], light[s:s + chunk], gains, design, noise)
+                        for s in range(0, N, chunk)])
     cov = np.full_like(F, np.nan)
     ok = np.all(np.isfinite(F), axis=(1, 2)) & (light > 0)
     ok[ok] &= np.linalg.cond(F[ok]) < 1e14
@@ -196,6 +169,43 @@ def pixel_bound(rig, film, normals, thickness_nm, noise: dict, capture: str, bac
         normal_deg = np.degrees(np.sqrt(normal_var))
         zenith_deg = np.degrees(np.sqrt(zenith_var))
     return {"normal_deg": normal_deg, "zenith_deg": zenith_deg, "thickness_nm": thick, "fisher": F}
+
+
+def _fisher(model, kind, capture, x, light, gains, design, noise) -> np.ndarray:
+    """Fisher information (n, P, P) of the pixels ``x`` (n, 2+L) for ``capture``, the images
+    exposed with ``gains`` ((A,) camera images, or (A, B) one per angle and band)."""
+    n = x.shape[0]
+    vals, jac = model.evaluate(kind, x, "double_angle", fixed={"light": light}, derivatives=True)
+    if capture == "polarized_rgb":
+        A = gains.size
+        imgs = vals.reshape(n, A, 3).transpose(1, 0, 2)                   # (A, n, 3)
+        var = capture_variance(imgs, gains, noise)                         # (A, n, 3)
+        J = jac.reshape(n, A * 3, -1)
+        w = 1.0 / var.transpose(1, 0, 2).reshape(n, A * 3)
+        return np.einsum("nmp,nm,nmq->npq", J, w, J)
+    B = gains.shape[1]
+    S = vals.reshape(n, 3, B)
+    dS = jac.reshape(n, 3, B, -1)
+    imgs = np.einsum("ak,nkb->anb", design, S)                             # (A, n, B)
+    var = np.stack([capture_variance(imgs[:, :, b], gains[:, b], noise) for b in range(B)], axis=2)
+    if capture == "stokes":
+        J = np.einsum("ak,nkbp->nabp", design, dS).reshape(n, -1, dS.shape[-1])
+        w = 1.0 / var.transpose(1, 0, 2).reshape(n, -1)
+        return np.einsum("nmp,nm,nmq->npq", J, w, J)
+    # s = S0 + |(S1, S2)| of the fitted Stokes vector: its derivatives by the images
+    fit = np.linalg.pinv(design)                                           # (3, A)
+    lin = np.hypot(S[:, 1], S[:, 2])                                       # (n, B)
+    safe = np.where(lin > 0, lin, 1.0)
+    u1, u2 = np.where(lin > 0, S[:, 1] / safe, 0.0), np.where(lin > 0, S[:, 2] / safe, 0.0)
+    ds_dI = fit[0][:, None, None] + u1[None] * fit[1][:, None, None] + u2[None] * fit[2][:, None, None]
+    w = 1.0 / np.sum(ds_dI ** 2 * var, axis=0)                            # (n, B)
+    J = dS[:, 0] + u1[:, :, None] * dS[:, 1] + u2[:, :, None] * dS[:, 2]
+    # s does not depend on the azimuth: its information is in (|v|, d) alone
+    u = np.hypot(x[:, 0], x[:, 1])
+    safe_u = np.where(u > 0, u, 1.0)
+    cos2, sin2 = np.where(u > 0, x[:, 0] / safe_u, 1.0), np.where(u > 0, x[:, 1] / safe_u, 0.0)
+    J = np.concatenate([(J[:, :, 0] * cos2[:, None] + J[:, :, 1] * sin2[:, None])[:, :, None], J[:, :, 2:]], axis=2)
+    return np.einsum("nmp,nm,nmq->npq", J, w, J)
 
 
 def _layers(model, thickness_nm, n) -> np.ndarray:
