@@ -223,6 +223,15 @@ def _link(rel, target):
     return lambda c: os.symlink(c.p(target), c.p(rel))
 
 
+def _xml_scene(bsdf_body: str, size: int) -> str:
+    """A Mitsuba XML scene: a sphere with a ``thinfilm`` BSDF holding ``bsdf_body``, seen by a
+    ``size``-pixel orthographic sensor under a constant emitter."""
+    return ('<scene version="3.0.0"><sensor type="orthographic"><film type="hdrfilm">'
+            f'<integer name="width" value="{size}"/><integer name="height" value="{size}"/></film></sensor>'
+            f'<shape type="sphere"><bsdf type="thinfilm">{bsdf_body}</bsdf></shape>'
+            '<emitter type="constant"/></scene>')
+
+
 def _thickness_bitmap(c, value):
     """A render scene whose film thickness is a 2 x 2 PFM bitmap holding ``value`` in one pixel."""
     pixels = np.full(4, 300.0, dtype="<f4")
@@ -332,20 +341,13 @@ CASES = [
          setup=lambda c: c.write("sheet.toml", RENDER_SCENE.replace("THICKNESS", "-3.0")
                                  .replace('"thinfilm"', '"thinfilm_sheet"').replace(", substrate_ior = 1.6", ""))),
     Case("render/xml-alpha-nan", render(scene="rough.xml"), "'alpha' must be a finite number from 0 to 1, got nan",
-         setup=lambda c: c.write("rough.xml", '<scene version="3.0.0"><sensor type="orthographic"><film '
-                                 'type="hdrfilm"><integer name="width" value="4"/><integer name="height" '
-                                 'value="4"/></film></sensor><shape type="sphere"><bsdf type="thinfilm">'
-                                 '<float name="alpha" value="nan"/></bsdf></shape><emitter type="constant"/>'
-                                 '</scene>')),
+         setup=lambda c: c.write("rough.xml", _xml_scene('<float name="alpha" value="nan"/>', 4))),
     Case("render/unknown-dict-parameter", render(scene="typo.toml"), '"film_iorr"',
          setup=lambda c: c.write("typo.toml", RENDER_SCENE.replace("THICKNESS", "300.0")
                                  .replace("film_ior =", "film_iorr ="))),
     Case("render/unknown-xml-parameter", render(scene="typo.xml"), '"thickness_of_the_film_in_nanometres"',
-         setup=lambda c: c.write("typo.xml", '<scene version="3.0.0"><sensor type="orthographic"><film '
-                                 'type="hdrfilm"><integer name="width" value="8"/><integer name="height" '
-                                 'value="8"/></film></sensor><shape type="sphere"><bsdf type="thinfilm">'
-                                 '<float name="thickness_of_the_film_in_nanometres" value="3"/></bsdf>'
-                                 '</shape><emitter type="constant"/></scene>')),
+         setup=lambda c: c.write("typo.xml", _xml_scene('<float name="thickness_of_the_film_in_nanometres" '
+                                                        'value="3"/>', 8))),
     Case("render/unknown-transform-step", render(scene="tw.toml"), "unknown transform step 'shear'",
          setup=lambda c: c.write("tw.toml", RENDER_SCENE.replace("THICKNESS", "300.0")
                                  .replace("to_world = { look_at", "to_world = { shear = 1, look_at"))),
