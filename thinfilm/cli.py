@@ -20,7 +20,7 @@ import sys
 from . import __version__
 from .core.errors import NoResultError, UserError
 
-__all__ = ["main", "build_parser", "flag_for", "cli_message"]
+__all__ = ["main", "build_parser", "commands", "arguments", "subcommands", "flag_for", "cli_message"]
 
 #: the flags of library arguments whose name is not the flag's (``--NAME`` with ``-`` for ``_``)
 FLAGS = {"thickness_range_nm": "--thickness-range", "options": "--option"}
@@ -123,18 +123,30 @@ def _add_cluster_arguments(p) -> None:
                    help="use an existing Dask cluster: tcp://HOST:PORT or a scheduler file")
 
 
+def _examples(*lines: str) -> dict:
+    """The keyword arguments of a (sub)parser whose ``--help`` ends with these example command
+    lines (kept as written)."""
+    return {"epilog": "examples:\n" + "\n".join("  " + line for line in lines),
+            "formatter_class": argparse.RawDescriptionHelpFormatter}
+
+
 def build_parser() -> argparse.ArgumentParser:
     from .generators.spec_schema import LIMITS
 
     p = _Parser(
         prog="thinfilm",
         description="Spectral, polarized thin-film rendering, benchmark generation and reconstruction.",
+        **_examples("thinfilm generate cylinder --out data/cyl --resolution 64",
+                    "thinfilm reconstruct rgb data/cyl --out est/cyl-rgb",
+                    "thinfilm evaluate data/cyl est/cyl-rgb --out eval/cyl-rgb",
+                    "thinfilm COMMAND --help      (the options and an example of each command)"),
     )
     p.add_argument("--version", action="version", version=f"thinfilm {__version__}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
 
-    r = sub.add_parser("render", help="render a Mitsuba scene (XML, TOML or JSON dict) with the thinfilm plugin")
+    r = sub.add_parser("render", help="render a Mitsuba scene (XML, TOML or JSON dict) with the thinfilm plugin",
+                       **_examples("thinfilm render examples/soap_bubble.xml --out out/bubble --spp 16"))
     r.add_argument("scene", help="Mitsuba scene: .xml, or a .toml/.json file holding a load_dict dictionary")
     r.add_argument("--out", required=True, help="output image path stem; writes STEM.exr and STEM.png")
     r.add_argument("--variant", default="llvm_ad_spectral_polarized", help="Mitsuba variant (default: %(default)s)")
@@ -148,9 +160,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help="PNG brightness: 'auto' (99.5th percentile to 90%%) or a gain (the EXR stays linear)")
     r.set_defaults(target="thinfilm.render:cli_main")
 
-    g = sub.add_parser("generate", help="generate a benchmark dataset from a scene spec or preset, or a sweep of them")
-    g.add_argument("spec", metavar="SPEC.toml|PRESET", nargs="?", default=None)
-    g.add_argument("--out", required=True)
+    g = sub.add_parser("generate", help="generate a benchmark dataset from a scene spec or preset, or a sweep of them",
+                       **_examples("thinfilm generate cylinder --out data/cyl --resolution 64",
+                                   "thinfilm generate examples/scene.toml --out data/mine --set film.thickness.value=450",
+                                   "thinfilm generate --sweep examples/sweep.toml --count 4 --seed 1 --out data/sweep"))
+    g.add_argument("spec", metavar="SPEC.toml|PRESET", nargs="?", default=None,
+                   help="a scene spec file, or a preset name (hemisphere, cylinder, pyramid); not with --sweep")
+    g.add_argument("--out", required=True, help="the dataset folder to write (with --sweep: the folder of the datasets)")
     g.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a spec key, e.g. --set film.thickness.value=450 (repeatable)")
     g.add_argument("--resolution", type=_bounded_int(*LIMITS["resolution"]), default=None,
@@ -164,14 +180,21 @@ def build_parser() -> argparse.ArgumentParser:
     _add_cluster_arguments(g)
     g.set_defaults(target="thinfilm.sweep:generate_main")
 
-    rec = sub.add_parser("reconstruct", help="estimate normals, film index and thickness from a dataset")
+    rec = sub.add_parser("reconstruct", help="estimate normals, film index and thickness from a dataset",
+                         **_examples("thinfilm reconstruct rgb data/cyl --out est/cyl-rgb",
+                                     "thinfilm reconstruct spectral data/cyl --out est/cyl-spec"))
     rsub = rec.add_subparsers(dest="kind", metavar="KIND")
     rsub.required = True
-    rgb = rsub.add_parser("rgb", help="from polarized RGB images (known film index)")
-    rgb.add_argument("dataset")
-    rgb.add_argument("--out", required=True)
-    rgb.add_argument("--film-ior", type=_index, default=None)
-    rgb.add_argument("--substrate-ior", type=_index, default=None)
+    rgb = rsub.add_parser("rgb", help="from polarized RGB images (known film index)",
+                          **_examples("thinfilm reconstruct rgb data/cyl --out est/cyl-rgb",
+                                      "thinfilm reconstruct rgb data/cyl --out est/cyl-paper --method paper "
+                                      "--film-ior 1.38"))
+    rgb.add_argument("dataset", help="a dataset folder (generated or imported)")
+    rgb.add_argument("--out", required=True, help="the estimate folder to write")
+    rgb.add_argument("--film-ior", type=_index, default=None, metavar="N2",
+                     help="film index (default: the dataset's meta.json; the effective index at 550 nm)")
+    rgb.add_argument("--substrate-ior", type=_index, default=None, metavar="N3",
+                     help="substrate index (default: the dataset's meta.json)")
     rgb.add_argument("--thickness-range", type=_nonnegative_float, nargs=2, metavar=("MIN", "MAX"), default=None,
                      help="film thicknesses to consider, nm (default: 100 to 1000; colour alone cannot order "
                           "thicker films)")
@@ -181,10 +204,13 @@ def build_parser() -> argparse.ArgumentParser:
     rgb.add_argument("--option", action="append", default=None, metavar="NAME=VALUE",
                     help="set one of the method's options (repeatable; 'thinfilm methods' lists them)")
     rgb.set_defaults(target="thinfilm.reconstruct:cli_main")
-    sp = rsub.add_parser("spectral", help="from s-polarized hyperspectral images (film index estimated)")
-    sp.add_argument("dataset")
-    sp.add_argument("--out", required=True)
-    sp.add_argument("--substrate-ior", type=_index, default=None)
+    sp = rsub.add_parser("spectral", help="from s-polarized hyperspectral images (film index estimated)",
+                         **_examples("thinfilm reconstruct spectral data/cyl --out est/cyl-spec",
+                                     "thinfilm reconstruct spectral data/cyl --out est/cyl-paper --method paper"))
+    sp.add_argument("dataset", help="a dataset folder (generated or imported)")
+    sp.add_argument("--out", required=True, help="the estimate folder to write")
+    sp.add_argument("--substrate-ior", type=_index, default=None, metavar="N3",
+                    help="substrate index (default: the dataset's meta.json)")
     sp.add_argument("--thickness-range", type=_nonnegative_float, nargs=2, metavar=("MIN", "MAX"), default=None,
                     help="film thicknesses to consider, nm (default: 20 to 5000, less where the bands cannot "
                          "resolve the fringes)")
@@ -195,19 +221,25 @@ def build_parser() -> argparse.ArgumentParser:
                     help="set one of the method's options (repeatable; 'thinfilm methods' lists them)")
     sp.set_defaults(target="thinfilm.reconstruct:cli_main")
 
-    me = sub.add_parser("methods", help="list the reconstruction methods (built-in and installed)")
+    me = sub.add_parser("methods", help="list the reconstruction methods (built-in and installed)",
+                        **_examples("thinfilm methods", "thinfilm methods --json"))
     me.add_argument("--json", action="store_true", help="one JSON object per method, for machines")
     me.set_defaults(target="thinfilm.methods_command:cli_main")
 
-    ev = sub.add_parser("evaluate", help="re-render an estimate and score it against the captures")
-    ev.add_argument("dataset")
-    ev.add_argument("estimate")
-    ev.add_argument("--out", required=True)
+    ev = sub.add_parser("evaluate", help="re-render an estimate and score it against the captures",
+                        **_examples("thinfilm evaluate data/cyl est/cyl-rgb --out eval/cyl-rgb"))
+    ev.add_argument("dataset", help="the dataset folder the estimate was made from")
+    ev.add_argument("estimate", help="an estimate folder written by 'thinfilm reconstruct'")
+    ev.add_argument("--out", required=True, help="the evaluation folder to write (metrics.json, figures)")
     ev.set_defaults(target="thinfilm.evaluation:cli_main")
 
     _add_import_parsers(sub)
 
-    b = sub.add_parser("benchmark", help="every scene of a suite x every method, scored, with a report")
+    b = sub.add_parser("benchmark", help="every scene of a suite x every method, scored, with a report",
+                       **_examples("thinfilm benchmark --quick --out out/benchmark",
+                                   "thinfilm benchmark --quick --methods coherent,eikonal --resolution 32 --out out/small",
+                                   "thinfilm benchmark --quick --resume --baseline out/benchmark/results.json "
+                                   "--out out/again"))
     b.add_argument("--suite", default=None, metavar="NAME|FILE",
                    help="a shipped suite (presets, the default; standard) or a suite .toml file")
     b.add_argument("--quick", action="store_true", help="small images (at most 128 px; presets: about a minute)")
@@ -221,10 +253,13 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--no-figures", action="store_true",
                    help="no PNG figures per task (faster for large suites; the report has the tables only)")
     _add_cluster_arguments(b)
-    b.add_argument("--out", required=True)
+    b.add_argument("--out", required=True, help="the run's folder (datasets, tasks, results.json, report.md)")
     b.set_defaults(target="thinfilm.benchmark:cli_main")
 
-    fs = sub.add_parser("fit-spectrum", help="film thickness (and index) from measured reflection spectra")
+    fs = sub.add_parser("fit-spectrum", help="film thickness (and index) from measured reflection spectra",
+                         **_examples("thinfilm fit-spectrum examples/spectrum_mgf2.csv --film-ior MgF2 --substrate-ior 1.52",
+                                     "thinfilm fit-spectrum run/*.csv --film-ior cauchy:1.324,0.003046 --substrate-ior 1 "
+                                     "--fit-film-ior --json"))
     fs.add_argument("spectra", nargs="+", metavar="SPECTRUM",
                     help="two-column text file: wavelength in nm, value (comma or whitespace separated)")
     fs.add_argument("--film-ior", required=True, metavar="N|MATERIAL|cauchy:A,B[,C]",
@@ -248,10 +283,41 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def commands(parser: argparse.ArgumentParser | None = None) -> list[tuple[str, argparse.ArgumentParser]]:
+    """Every (sub)command of the command line, depth first: ``("thinfilm", parser)``,
+    ``("thinfilm render", parser)``, ``("thinfilm reconstruct rgb", parser)``, ... (the
+    command-line reference and the help tests walk it)."""
+    parser = build_parser() if parser is None else parser
+    out = [(parser.prog, parser)]
+    for action in arguments(parser):
+        if isinstance(action, argparse._SubParsersAction):
+            for name, child in action.choices.items():
+                out.extend(commands(child))
+    return out
+
+
+def arguments(parser: argparse.ArgumentParser) -> list[argparse.Action]:
+    """The arguments of one (sub)parser, in their order (the subcommands' action included)."""
+    return list(parser._actions)
+
+
+def subcommands(parser: argparse.ArgumentParser) -> dict[str, str | None]:
+    """The subcommands of one (sub)parser and the one-line help of each (None where it has
+    none)."""
+    out = {}
+    for action in arguments(parser):
+        if isinstance(action, argparse._SubParsersAction):
+            helps = {choice.dest: choice.help for choice in action._choices_actions}
+            out.update({name: helps.get(name) for name in action.choices})
+    return out
+
+
 def _add_import_parsers(sub) -> None:
     """``thinfilm import polarization|spectral`` (:mod:`thinfilm.importers`)."""
     imp = sub.add_parser("import", help="make a dataset folder from real captures (polarization camera, "
-                                        "hyperspectral cubes)")
+                                        "hyperspectral cubes)",
+                         **_examples("thinfilm import polarization data/raw/raw.tiff --layout dofp-rgb --out data/part",
+                                     "thinfilm import spectral cube.hdr --white white.hdr --dark dark.hdr --out data/cube"))
     isub = imp.add_subparsers(dest="kind", metavar="KIND")
     isub.required = True
 
@@ -267,14 +333,18 @@ def _add_import_parsers(sub) -> None:
         q.add_argument("--white-reflectance", default="1", metavar="R|CSV",
                        help="reflectance of the white reference target: a number or a CSV spectrum (default 1)")
 
-    pol = isub.add_parser("polarization", help="polarizer images or a colour polarization-sensor mosaic")
+    pol = isub.add_parser("polarization", help="polarizer images or a colour polarization-sensor mosaic",
+                          **_examples("thinfilm import polarization frame.tiff --layout dofp-rgb --bit-depth 12 "
+                                      "--dark dark.tiff --white-reference white.tiff --out data/part",
+                                      "thinfilm import polarization p0.tif p45.tif p90.tif p135.tif --layout separate "
+                                      "--angles 0,45,90,135 --out data/dslr"))
     pol.add_argument("images", nargs="+", metavar="IMAGE", help="PNG or TIFF files (8, 12 or 16 bits)")
     pol.add_argument("--layout", required=True, choices=("separate", "dofp-rgb"),
                      help="separate: one RGB image per polarizer angle; dofp-rgb: raw mosaic(s) of a colour "
                           "division-of-focal-plane sensor")
     pol.add_argument("--angles", default=None, metavar="A,B,C,...",
                      help="separate: the polarizer angle of each image, in degrees (3 or more)")
-    pol.add_argument("--pattern", default=None,
+    pol.add_argument("--pattern", default=None, metavar="PATTERN",
                      help="dofp-rgb: the sensor's filter pattern (default RGGB:90,45,135,0, Sony IMX250MYR)")
     pol.add_argument("--bit-depth", type=_positive_int, default=None, metavar="N",
                      help="bits of the camera's values (default: the file's; e.g. 12 for 12-bit values in 16-bit files)")
@@ -293,7 +363,10 @@ def _add_import_parsers(sub) -> None:
     common(pol)
     pol.set_defaults(target="thinfilm.importers.polarization:cli_main")
 
-    spe = isub.add_parser("spectral", help="hyperspectral cubes (ENVI or multi-page TIFF)")
+    spe = isub.add_parser("spectral", help="hyperspectral cubes (ENVI or multi-page TIFF)",
+                          **_examples("thinfilm import spectral cube.hdr --white white.hdr --dark dark.hdr --out data/cube",
+                                      "thinfilm import spectral p0.tif p45.tif p90.tif p135.tif --polarizer stokes "
+                                      "--wavelengths 400:720:4 --out data/cube"))
     spe.add_argument("cubes", nargs="+", metavar="CUBE", help="ENVI (.hdr and data) or TIFF cube(s)")
     spe.add_argument("--wavelengths", default=None, metavar="START:STOP:STEP|LIST|FILE",
                      help="band centres in nm (required for TIFF cubes; overrides an ENVI header)")
