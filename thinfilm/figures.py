@@ -6,7 +6,9 @@
   exposure) | ΔE*ab map (colour bar).
 - ``errors.png``: zenith error, thickness error, ΔE*ab and ΔE00 maps, each with a colour bar.
 
-Normals are shown as ``(n + 1) / 2`` in RGB. Pixels outside the object mask are grey.
+Normals are shown as ``(n + 1) / 2`` in RGB, camera frame (x right, y up, z towards the
+camera), with a colour key beside each normal map: a sphere seen from the camera,
+whose pixels show the colour of their own normal. Pixels outside the object mask are grey.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import numpy as np
 
 __all__ = [
     "normals_to_rgb",
+    "normal_key",
     "lab_to_display_srgb",
     "save_panels",
     "write_evaluation_figures",
@@ -31,6 +34,18 @@ def normals_to_rgb(normals, mask) -> np.ndarray:
     rgb = np.clip((n + 1.0) / 2.0, 0.0, 1.0)
     rgb[~np.asarray(mask, dtype=bool)] = _BACKGROUND
     return rgb
+
+
+def normal_key(size: int = 65) -> np.ndarray:
+    """The colour key of :func:`normals_to_rgb`: a ``size`` x ``size`` RGB image of a sphere
+    seen from the camera (each pixel the colour of the sphere's normal there; x right, y up,
+    row 0 at the top), grey around it."""
+    c = (np.arange(size) + 0.5) / size * 2.0 - 1.0
+    x, y = np.meshgrid(c, -c)
+    r2 = x * x + y * y
+    inside = r2 <= 1.0
+    normals = np.stack([x, y, np.sqrt(np.clip(1.0 - r2, 0.0, None))], axis=-1)
+    return normals_to_rgb(normals, inside)
 
 
 def lab_to_display_srgb(labs, mask, white_xy=None, percentile=99.0, target=0.85):
@@ -62,7 +77,8 @@ def save_panels(path, panels, title=None, panel_size=3.2, dpi=100) -> Path:
     panels : list of dict
         Each ``{"image": (H, W) or (H, W, 3), "title": str}``; a 2-D image gets a colour map
         (``cmap``, default ``"viridis"``), limits ``vmin``/``vmax`` and a colour bar labelled
-        ``label``; NaN pixels show grey.
+        ``label``; NaN pixels show grey. ``"key": "normals"`` adds the colour key of a normal
+        map (:func:`normal_key`) beside its lower right corner.
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -87,6 +103,13 @@ def save_panels(path, panels, title=None, panel_size=3.2, dpi=100) -> Path:
                 cb.set_label(p["label"])
         else:
             ax.imshow(np.clip(img, 0.0, 1.0), interpolation="nearest")
+        if p.get("key") == "normals":
+            inset = ax.inset_axes([1.02, 0.0, 0.24, 0.24])
+            inset.imshow(normal_key(), interpolation="bilinear")
+            inset.set_xticks([])
+            inset.set_yticks([])
+            inset.set_title("key", fontsize=7, pad=2)
+            inset.set_xlabel("x →, y ↑", fontsize=6, labelpad=1)
         ax.set_title(p.get("title", ""), fontsize=9)
         ax.set_xticks([])
         ax.set_yticks([])
@@ -126,8 +149,9 @@ def write_evaluation_figures(out_dir, result: dict) -> list:
 
     if gt:
         written.append(save_panels(out_dir / "normals.png", [
-            {"image": normals_to_rgb(gt["normal"], obj), "title": "ground-truth normals"},
-            {"image": normals_to_rgb(est.normals, est.valid), "title": f"estimated normals ({method})"},
+            {"image": normals_to_rgb(gt["normal"], obj), "title": "ground-truth normals", "key": "normals"},
+            {"image": normals_to_rgb(est.normals, est.valid), "title": f"estimated normals ({method})",
+             "key": "normals"},
             {"image": _masked(maps["normal_error_deg"], mask), "title": "normal error",
              "label": "degrees", "cmap": "magma", "vmin": 0.0,
              "vmax": max(_robust_max(maps["normal_error_deg"], mask), 1.0)},
