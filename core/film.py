@@ -64,7 +64,7 @@ __all__ = [
 #: wavelength (nm) at which a dispersive index is read when one number is needed
 REFERENCE_WAVELENGTH_NM = 550.0
 
-#: the largest |B| (µm²) and |C| (µm⁴) of a Cauchy model. Transparent materials have B of
+#: the largest ``|B|`` (µm²) and ``|C|`` (µm⁴) of a Cauchy model. Transparent materials have B of
 #: about 0.003–0.1 µm² and C below 0.01 µm⁴ (B = 1 µm² alone adds 6 to the index at 400 nm),
 #: so a larger value is one given with λ in nm (B nm² = 1e-6 µm², C nm⁴ = 1e-12 µm⁴)
 CAUCHY_MAX_B_UM2 = 1.0
@@ -87,8 +87,8 @@ def cauchy_index(coefficients, where: str = "Cauchy model", unit: str = "um", ot
     Raises
     ------
     UserError
-        One line: not 1 to 3 finite numbers, A <= 0, |B| > :data:`CAUCHY_MAX_B_UM2` or |C| >
-        :data:`CAUCHY_MAX_C_UM4` in µm (plainly nm), a non-zero |B| or |C| below 1 in nm (plainly
+        One line: not 1 to 3 finite numbers, A <= 0, ``|B|`` > :data:`CAUCHY_MAX_B_UM2` or ``|C|`` >
+        :data:`CAUCHY_MAX_C_UM4` in µm (plainly nm), a non-zero ``|B|`` or ``|C|`` below 1 in nm (plainly
         µm: it would change no index by 1e-5).
 
     Examples

@@ -19,7 +19,8 @@ from pathlib import Path
 from thinfilm.bsdf import limits as plugin_limits
 from thinfilm.core.errors import UserError
 
-__all__ = ["SHAPE_KINDS", "PROFILES", "LIMITS", "Checker", "resolve", "wavelength_grid", "estimated_memory_bytes"]
+__all__ = ["SHAPE_KINDS", "PROFILES", "LIMITS", "REQUIRED", "CHECKS", "Checker", "resolve", "schema", "describe_check",
+           "wavelength_grid", "estimated_memory_bytes"]
 
 #: Limits of the values a spec may hold: beyond them a capture would take more memory or
 #: time than any machine has, lose its precision in Mitsuba's single-precision geometry,
@@ -112,6 +113,52 @@ _NOISE_KEYS = {
     "exposure": ("exposure", "auto"),
 }
 _TOP_KEYS = ("seed", "shape", "film", "substrate", "rig", "noise")
+
+#: the default of a key that the user must give, in :func:`schema`
+REQUIRED = _REQUIRED
+
+#: what each checker of the schema accepts, in words (the scene-spec reference is generated
+#: from :func:`schema` and these)
+CHECKS = {
+    "length": "a length in scene units, {length[0]:g} to {length[1]:g}",
+    "radius": "0 (the silhouette's radius) or a length in scene units",
+    "thickness": "a film thickness in nm, {thickness_nm[0]:g} to {thickness_nm[1]:g}",
+    "layer_thickness": "a layer thickness in nm, > 0 and up to {thickness_nm[1]:g}",
+    "fwhm": "a passband width (FWHM) in nm, {band_fwhm_nm[0]:g} to {band_fwhm_nm[1]:g} (0: one wavelength per band)",
+    "full_well": "electrons, {full_well[0]:g} to {full_well[1]:g}",
+    "read_noise": "electrons, {read_noise[0]:g} to {read_noise[1]:g}",
+    "resolution": "a whole number of pixels, {resolution[0]} to {resolution[1]} (width and height)",
+    "depth": "a whole number of bounces, {max_depth[0]} to {max_depth[1]}",
+    "bits": "a whole number of bits, 1 to 24",
+    "bool": "true or false",
+    "vec3": "3 numbers: x, y, z Euler angles in degrees, applied in that order",
+    "lengths3": "3 lengths in scene units",
+    "offset": "3 numbers in scene units: the part's position",
+    "amplitude": "0 or a length in scene units",
+    "number": "a number",
+    "parts": "a list of shape tables (any kind but mesh and group), each with an offset; at most "
+             f"{MAX_GROUP_PARTS}",
+    "axis": '"x" or "y"',
+    "passband": '"gaussian" or "box"',
+    "sensor": '"ideal" (no raw data) or "dofp-rgb" (a colour polarization sensor\'s raw.tiff too)',
+    "noise_model": '"camera" (shot, read and quantization noise) or "none"',
+    "exposure": '"auto" or electrons per unit reflectance, {exposure[0]:g} to {exposure[1]:g}',
+    "spp": '"auto" or a whole number of samples per pixel, 1 to 4096 (rough films)',
+    "roughness": "the microfacet roughness (GGX alpha), 0 (smooth) to 1",
+    "hole": "an angle in degrees, 0 to below 90 (a hole in the dome around the camera)",
+    "fill": "a fraction of the image, {fill[0]:g} to {fill[1]:g}",
+    "file": "a file path (relative to the spec's folder)",
+    "layers": "a list of 1 to " f"{MAX_STACK_LAYERS}" " layer tables, from the exterior down",
+    "bitmap": ("an .exr (channel thickness, Y, R or its only one) or .npy file of thicknesses in nm, "
+               "relative to the spec's folder"),
+    "ior": "a refractive index ({index[0]:g} to {index[1]:g}), 'n+ki' text or a material name",
+    "index": "a refractive index, {index[0]:g} to {index[1]:g}",
+    "extinction": "an extinction coefficient k, {extinction[0]:g} to {extinction[1]:g}",
+    "angles": "whole-degree polarizer angles, 0 to 359, at least 3 that differ modulo 180",
+    "wavelengths": "a table {{ start, stop, step }} in nm (band centres start, start + step, ... up to stop)",
+    "camera": "a camera name (colour's camera sensitivities) or a CSV path",
+    "illuminant": "an illuminant name (e.g. D65, D50, A) or a CSV path",
+}
 
 
 # --- checkers ------------------------------------------------------------------------------
@@ -535,6 +582,26 @@ def wavelength_grid(rig: dict):
     w = rig["wavelengths_nm"]
     count = int(math.floor((w["stop"] - w["start"]) / w["step"] + 1e-9)) + 1
     return w["start"] + w["step"] * np.arange(count, dtype=np.float64)
+
+
+def schema() -> dict:
+    """Every table of a scene spec: ``{table: {key: (checker, default)}}``, the checkers named
+    as in :data:`CHECKS` (:data:`REQUIRED` for a key without default). ``shape`` and
+    ``film.thickness`` hold one such table per ``kind`` / ``profile``. A copy: changing it
+    changes nothing."""
+    keep = {id(_REQUIRED): _REQUIRED}
+    tables = {"seed": {"seed": ("seed", 0)}, "shape": _SHAPE_KEYS, "film": _FILM_KEYS,
+              "film (a stack)": _STACK_KEYS, "film.layers[i]": _LAYER_KEYS,
+              "film.thickness": _PROFILE_KEYS, "substrate": _SUBSTRATE_KEYS, "rig": _RIG_KEYS,
+              "noise": _NOISE_KEYS}
+    return copy.deepcopy(tables, keep)
+
+
+def describe_check(kind: str) -> str:
+    """What checker ``kind`` of :func:`schema` accepts, in words (limits from :data:`LIMITS`)."""
+    if kind == "seed":
+        return "a whole number, {0} to {1}".format(*LIMITS["seed"])
+    return CHECKS[kind].format(**LIMITS)
 
 
 SHAPE_KINDS = tuple(_SHAPE_KEYS)

@@ -104,8 +104,8 @@ def angular_error_deg(normals_a, normals_b) -> np.ndarray:
 
 
 def geometry_error_maps(ground_truth: dict, estimate) -> dict:
-    """Per-pixel ``normal_error_deg``, ``zenith_error_deg`` (|θ_est − θ_gt|) and
-    ``thickness_error_nm`` (|d_est − d_gt|); NaN where the estimate is invalid."""
+    """Per-pixel ``normal_error_deg``, ``zenith_error_deg`` (``|θ_est − θ_gt|``) and
+    ``thickness_error_nm`` (``|d_est − d_gt|``); NaN where the estimate is invalid."""
     from thinfilm.core.conventions import normals_to_angles
 
     valid = estimate.valid

@@ -1,9 +1,9 @@
 """PNG figures of an evaluation (matplotlib's Agg canvas, no pyplot global state).
 
-- ``normals.png``: ground-truth normals | estimated normals | angular error (colour bar, deg).
-- ``thickness.png``: ground-truth thickness | estimated thickness | |error| (colour bars, nm).
-- ``appearance.png``: captured | re-rendered (sRGB of the s-polarized appearance, one common
-  exposure) | ΔE*ab map (colour bar).
+- ``normals.png``: ground-truth normals, estimated normals, angular error (colour bar, deg).
+- ``thickness.png``: ground-truth thickness, estimated thickness, ``|error|`` (colour bars, nm).
+- ``appearance.png``: captured, re-rendered (sRGB of the s-polarized appearance, one common
+  exposure), ΔE*ab map (colour bar).
 - ``errors.png``: zenith error, thickness error, ΔE*ab and ΔE00 maps, each with a colour bar.
 
 Normals are shown as ``(n + 1) / 2`` in RGB, camera frame (x right, y up, z towards the
