@@ -1,7 +1,7 @@
 """Output folders and files: never destroy anything, never leave anything half written.
 
-The rule (``README.md``, *Outputs never destroy anything*)
-----------------------------------------------------------
+The rule (``docs/design.md``, *Outputs never destroy anything*)
+---------------------------------------------------------------
 A command replaces an existing ``--out`` folder only if
 
 1. this tool made it: it holds the marker file :data:`MARKER` (``.thinfilm-output``, a small

@@ -45,7 +45,7 @@ nb_execution_show_tb = True
 nb_merge_streams = True
 
 exclude_patterns = ["_build", "**/.ipynb_checkpoints", "_ext"]
-suppress_warnings = ["myst.header"]   # design.md starts at level 1 and skips none, others may
+suppress_warnings = ["myst.header"]   # headings that skip a level (the pages moved from the README)
 
 # The API reference: the docstrings are numpydoc.
 autodoc_member_order = "bysource"

@@ -1,4 +1,4 @@
-"""The layers of the package (README, *Architecture*) and the house rules on imports, checked
+"""The layers of the package (``docs/architecture.md``) and the house rules on imports, checked
 on the source of every module of the project: the package folders, ``thinfilm/importers``,
 the tests, benchmarks, scripts and examples.
 
