@@ -145,7 +145,7 @@ CHECKS = {
     "exposure": '"auto" or electrons per unit reflectance, {exposure[0]:g} to {exposure[1]:g}',
     "spp": '"auto" or a whole number of samples per pixel, 1 to 4096 (rough films)',
     "roughness": "the microfacet roughness (GGX alpha), 0 (smooth) to 1",
-    "hole": "an angle in degrees, 0 to below 90 (a hole in the dome around the camera)",
+    "hole": "an angle in degrees, 0 to below 90: the angular radius of the camera's hole in the lighting dome",
     "fill": "a fraction of the image, {fill[0]:g} to {fill[1]:g}",
     "file": "a file path (relative to the spec's folder)",
     "layers": "a list of 1 to " f"{MAX_STACK_LAYERS}" " layer tables, from the exterior down",

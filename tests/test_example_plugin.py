@@ -70,7 +70,8 @@ def test_reconstruct_and_benchmark_run_it(env, tmp_path):
     assert (est.thickness_nm[est.valid] == 400.0).all()
 
     out = tmp_path / "bench"
-    # the command of the README at 32 px (the quick run's 128 px take a minute on 2 cores)
+    # the presets suite, the example method beside the default, at 32 px (the quick run's
+    # 128 px take a minute on 2 cores)
     r = _thinfilm(env, "benchmark", "--suite", "presets", "--quick", "--methods", "example-flat,coherent",
                   "--resolution", "32", "--out", str(out))
     assert r.returncode == 0, r.stdout + r.stderr

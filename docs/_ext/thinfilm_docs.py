@@ -72,7 +72,7 @@ def _value(action: argparse.Action) -> str:
         return " ".join(metavar)
     if metavar:
         return metavar
-    return action.dest.upper() if action.option_strings else action.dest
+    return action.dest.upper() if action.option_strings else ""
 
 
 class CliReference(_Generated):
@@ -140,7 +140,12 @@ class SpecReference(_Generated):
         out = []
         tables = schema()
         for name, keys in tables.items():
-            title = _literal(f"[{name}]") if " " not in name else _literal("[film]") + " as a stack"
+            if name == "seed":
+                title = "Top-level keys"
+            elif " " in name:
+                title = _literal("[film]") + " as a stack"
+            else:
+                title = _literal(f"[{name}]")
             out += [f".. _spec-{name.replace(' ', '-').replace('[i]', '').replace('(', '').replace(')', '')}:", "",
                     title, "-" * (len(title) + 2), ""]
             if name == "shape":
