@@ -52,7 +52,7 @@ SETUP = {
     "bash scripts/test.sh": "the test suite",
     ".venv/bin/pip install examples/estimator_plugin": "installed by scripts/test.sh",
 }
-DOCS_BUILD = ".venv/bin/python -m sphinx -b html docs docs/_build/html"
+DOCS_BUILD = ".venv/bin/python -m sphinx -b html docs out/docs"
 #: the main job: it needs nothing but the set-up and takes minutes, so it runs for the README
 #: only; another page that shows it must show the same command
 ONCE = ".venv/bin/thinfilm benchmark --quick --out out/benchmark"
