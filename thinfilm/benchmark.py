@@ -759,9 +759,9 @@ def cli_main(args) -> int:
     if scheduler is not None and workers is not None:
         raise UserError("--workers and --scheduler: give one of them (a scheduler's cluster has its own workers)")
     if scheduler is None and workers is None:
-        from thinfilm.cluster import default_workers
+        from thinfilm.cluster import auto_workers
 
-        workers = default_workers()
+        workers = auto_workers()
     results = run_benchmark(out, suite=getattr(args, "suite", None) or "presets", quick=args.quick,
                             methods=_method_list(getattr(args, "methods", None)),
                             resolution=getattr(args, "resolution", None), resume=getattr(args, "resume", False),
