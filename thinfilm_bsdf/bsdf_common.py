@@ -252,6 +252,31 @@ class Film:
         if self.dispersion is None:
             callback.put("film_k", self.k, diff)
 
+    def check_wavelengths(self, wavelength, plugin=None):
+        """Refuse a database material (:class:`.materials.DatabaseMaterial`) whose range does not
+        cover the wavelengths this variant evaluates: 360–830 nm in spectral variants (what
+        Mitsuba samples), the colour basis's nodes in RGB variants, the ``wavelength``
+        parameter in mono variants. Called when the plugin loads and when ``wavelength`` changes."""
+        models = ([layer.dispersion for layer in self.stack] if self.stack is not None
+                  else [self.dispersion])
+        models = [m for m in models if hasattr(m, "check_range")]
+        if not models:
+            return
+        if mi.is_spectral:
+            low, high, what = 360.0, 830.0, f"the wavelengths {mi.variant()} samples"
+        elif mi.is_rgb:
+            from .rgb import NODE_RANGE_NM
+
+            (low, high), what = NODE_RANGE_NM, f"the wavelengths {mi.variant()} integrates over"
+        else:
+            low = high = float(dr.ravel(wavelength)[0]) if dr.width(wavelength) else 550.0
+            what = "the 'wavelength' parameter"
+        for model in models:
+            try:
+                model.check_range(low, high, what)
+            except ValueError as e:
+                fail(f"parameter '{'stack' if self.stack is not None else 'film_ior'}': {e}", plugin or self.plugin)
+
     def checks(self):
         """``(name, value, bounds)`` for every scalar parameter (see ``check_parameters``)."""
         out = [] if self.scale_tex is not None else [("thickness_scale", self.scale, SCALE)]

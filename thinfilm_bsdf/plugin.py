@@ -182,6 +182,7 @@ class _ThinFilmMixin:
         self.m_wavelength = mi.Float(checked_float(props, "wavelength", 550.0, limits.WAVELENGTH_NM,
                                                    unit="nm"))
 
+        self.m_film.check_wavelengths(self.m_wavelength)
         self.m_rough = microfacet.Roughness(props)
         if self.m_rough.is_rough:
             flags = self.m_rough.flags
@@ -214,6 +215,7 @@ class _ThinFilmMixin:
             ("ext_ior", self.m_ext_ior, limits.INDEX),
             ("wavelength", self.m_wavelength, limits.WAVELENGTH_NM),
         ])
+        self.m_film.check_wavelengths(self.m_wavelength)
         self._make_opaque()
 
     # -- physics ------------------------------------------------------------
