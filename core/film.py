@@ -405,10 +405,11 @@ class Film:
             if thickness_scale is not None:
                 out["thickness_scale"] = thickness_scale
         sub = self.substrate
-        if not isinstance(sub, Constant):
-            raise NotImplementedError("dispersive substrates in the plugin (give a number)")
-        out["substrate_ior"] = float(sub.n)
-        out["substrate_k"] = float(sub.k)
+        if isinstance(sub, Constant):
+            out["substrate_ior"] = float(sub.n)
+            out["substrate_k"] = float(sub.k)
+        else:  # a material name (a Cauchy model has no plugin form)
+            out["substrate_ior"] = _plugin_index_text(sub)
         if roughness > 0:
             out["alpha"] = roughness
         return out

@@ -198,3 +198,31 @@ def test_an_unknown_material_on_the_command_line_is_one_line_with_exit_2(tmp_pat
     assert len(lines) == 1 and lines[0].startswith("thinfilm: error: "), proc.stderr
     assert "unknown material 'TiO3'" in lines[0] and "closest: " in lines[0] and "TiO2" in lines[0]
     assert not (tmp_path / "o").exists()
+
+
+def test_a_database_substrate_in_the_plugin_matches_tmm(variant_llvm_ad_spectral_polarized):
+    mi = variant_llvm_ad_spectral_polarized
+    from thinfilm.core.film import Film
+
+    film = Film.single(1.38, 120.0, substrate_ior="main/Ag/Johnson")
+    params = film.plugin_dict()
+    assert params["substrate_ior"] == "main/Ag/Johnson" and "substrate_k" not in params
+    bsdf = mi.load_dict(params)
+    assert "substrate_ior" not in mi.traverse(bsdf)   # a tabulated index is not a parameter
+    page = _page("main", "Ag", "Johnson")
+    si = random_interactions(mi, 16, seed=4)[0]
+    _, value = bsdf.sample(mi.BSDFContext(), si, 0.5, mi.Point2f(0.5, 0.5))
+    m00 = np.array(value[0, 0])
+    lams, cos_t = np.array(si.wavelengths), np.array(si.wi.z)
+    for j in range(cos_t.size):
+        theta = np.degrees(np.arccos(cos_t[j]))
+        for ch in range(4):
+            lam = lams[ch, j]
+            n3, k3 = (float(v) for v in _db_nk(page, np.array(lam)))
+            R = [tmm.coh_tmm(pol, [1.0, 1.38, complex(n3, k3)], [np.inf, 120.0, np.inf], np.radians(theta),
+                             lam)["R"] for pol in "sp"]
+            assert abs(m00[ch, j] - 0.5 * sum(R)) < 2e-5
+    with pytest.raises(Exception, match="'substrate_k' cannot be combined with substrate_ior 'main/Ag/Johnson'"):
+        mi.load_dict({"type": "thinfilm", "substrate_ior": "main/Ag/Johnson", "substrate_k": 1.0})
+    with pytest.raises(Exception, match="parameter 'substrate_ior': material main/TiO2/Devore-o is tabulated"):
+        mi.load_dict({"type": "thinfilm", "substrate_ior": "main/TiO2/Devore-o"})
