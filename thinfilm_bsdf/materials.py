@@ -67,6 +67,7 @@ __all__ = [
     "Tabulated",
     "Layer",
     "DatabaseMaterial",
+    "WavelengthRangeError",
     "DEFAULT_PAGE_RANGE_NM",
     "named_material",
     "database_material",
@@ -159,6 +160,12 @@ DEFAULT_PAGE_RANGE_NM = (360.0, 830.0)
 FORMULA_STEP = 1e-3
 
 
+class WavelengthRangeError(ValueError):
+    """A database material evaluated (or to be evaluated) outside its tabulated range: its
+    message names the material and the range, in one line (the command line prints it with
+    exit code 2)."""
+
+
 @dataclass(frozen=True)
 class DatabaseMaterial(Tabulated):
     """A page of the refractiveindex.info database (:func:`database_material`): n and k at the
@@ -174,12 +181,12 @@ class DatabaseMaterial(Tabulated):
         return (self.wavelengths_nm[0], self.wavelengths_nm[-1])
 
     def check_range(self, low_nm, high_nm, what: str = "the wavelengths"):
-        """``ValueError`` unless the page covers ``[low_nm, high_nm]``."""
+        """:class:`WavelengthRangeError` unless the page covers ``[low_nm, high_nm]``."""
         lo, hi = self.range_nm
         tol = 1e-9 * hi
         if low_nm < lo - tol or high_nm > hi + tol:
             asked = f"{low_nm:g} nm" if low_nm == high_nm else f"{low_nm:g}–{high_nm:g} nm"
-            raise ValueError(f"material {self.name} is tabulated from {lo:g} to {hi:g} nm only; "
+            raise WavelengthRangeError(f"material {self.name} is tabulated from {lo:g} to {hi:g} nm only; "
                              f"{what} ({asked}) fall outside it (no value is extrapolated)")
 
     def _interp(self, values, wavelength_nm):
