@@ -67,13 +67,28 @@ def test_workers_without_the_cluster_extra_names_it(tmp_path):
 
 
 def test_the_default_without_the_cluster_extra_runs_in_this_process():
-    code = ("import sys; sys.modules['distributed'] = None\n"
+    code = ("import sys, warnings; sys.modules['distributed'] = None\n"
             "from thinfilm.cluster import auto_workers, executor\n"
-            "assert auto_workers() == 0\n"
+            "with warnings.catch_warnings(record=True) as caught:\n"
+            "    warnings.simplefilter('always')\n"
+            "    assert auto_workers() == 0\n"
+            "assert [str(w.message) for w in caught] == ['every task runs in this process: a local Dask cluster "
+            "needs the \\'cluster\\' extra (dask, distributed): pip install \\'thinfilm[cluster]\\''], caught\n"
             "with executor(0) as ex: assert ex.describe() == {'mode': 'in-process', 'workers': 0}\n"
             "print('ok')")
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0 and proc.stdout.strip() == "ok", proc.stderr
+
+
+@pytest.mark.slow
+def test_a_sweep_without_the_cluster_extra_runs_in_this_process(tmp_path):
+    (tmp_path / "s.toml").write_text(SWEEP)
+    proc = _run_without(["dask", "distributed"], ["generate", "--sweep", tmp_path / "s.toml", "--count", "1",
+                                                  "--out", tmp_path / "o"], tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert "thinfilm: warning: every task runs in this process: a local Dask cluster needs the 'cluster' " \
+           "extra" in proc.stderr
+    assert (tmp_path / "o" / "0000" / "meta.json").is_file()
 
 
 def test_import_of_a_tiff_without_the_import_extra_names_it(tmp_path):

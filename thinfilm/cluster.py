@@ -72,8 +72,17 @@ def auto_workers() -> int:
     """The workers of a command given neither ``--workers`` nor ``--scheduler``: one per core
     (:func:`default_workers`) on a local Dask cluster, or 0 (every task in this process) when
     the ``cluster`` extra is not installed: a bare installation runs the same tasks, one
-    after another."""
-    return default_workers() if has_module("distributed") else 0
+    after another (with a :class:`~thinfilm.core.errors.ThinfilmWarning` saying so)."""
+    if has_module("distributed"):
+        return default_workers()
+    import warnings
+
+    from thinfilm.core.errors import ThinfilmWarning
+    from thinfilm.core.extras import missing_extra_message
+
+    warnings.warn(f"every task runs in this process: a local Dask cluster {missing_extra_message('cluster')}",
+                  ThinfilmWarning, stacklevel=2)
+    return 0
 
 
 def _in_worker(function, drjit_threads, *args):
