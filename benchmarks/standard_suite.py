@@ -7,7 +7,9 @@ Usage::
         [--methods NAME ...] [--only NAME ...] [--no-generate]
 
 Prints one row per scene and kind (normal error mean/p95 in degrees, thickness error in nm,
-film-index error, coverage, pass/fail) and the pass counts. ``thinfilm benchmark --suite
+film-index error, coverage, pass/fail, and the share of pixels whose normal and thickness
+errors lie within twice the estimate's σ) and the pass counts, then the σ calibration pooled
+over the pixels of all scenes. ``thinfilm benchmark --suite
 standard`` runs the same suite with re-rendering and the full report.
 """
 
@@ -22,7 +24,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from sweep_random_scenes import passes, score  # noqa: E402
+from sweep_random_scenes import passes, pool_calibration, print_calibration, score  # noqa: E402
 
 SUITE = Path(__file__).resolve().parents[1] / "scenes" / "suites" / "standard.toml"
 
@@ -54,6 +56,7 @@ def main(argv=None):
 
     work = Path(args.work)
     counts = {}
+    calibration = {}
     for scene in load_suite():
         if args.only and scene["name"] not in args.only:
             continue
@@ -90,10 +93,12 @@ def main(argv=None):
                     counts[key][0] += ok
                     counts[key][1] += 1
                     extra = f" n2 {s['film_ior_error']:.4f}" if "film_ior_error" in s else ""
+                    extra += pool_calibration(calibration, key, s)
                     print(f"{scene['name']:22s} {kind:8s} {m.name:9s} {'ok ' if ok else 'BAD'} normal "
                           f"{s['normal_mean']:5.2f}/{s['normal_p95']:5.2f} thickness {s['thickness_mean']:6.2f}"
                           f"{extra} coverage {s['coverage']:.3f} ({time.perf_counter() - t0:.1f} s)", flush=True)
     print("passed: " + ", ".join(f"{k} {v[0]}/{v[1]}" for k, v in counts.items()))
+    print_calibration(calibration)
     return 0
 
 

@@ -172,6 +172,14 @@ def score(dataset: Path, estimate, kind: str, mirror_equivalent: bool = False) -
            "normal_mean": float(np.nanmean(ne)) if ne.size else float("inf"),
            "normal_p95": float(np.nanpercentile(ne, 95)) if ne.size else float("inf"),
            "thickness_mean": float(np.nanmean(te)) if te.size else float("inf"), "mirror": mirror}
+    # calibration of the estimate's uncertainty: the share of pixels whose error is within 2 σ
+    # (and the pixel counts, for pooling over scenes)
+    if getattr(estimate, "normal_sigma_deg", None) is not None:
+        for key, err, sig in (("normal", ne, np.asarray(estimate.normal_sigma_deg)[sel]),
+                              ("thickness", te, np.asarray(estimate.thickness_sigma_nm)[sel])):
+            fin = np.isfinite(err)
+            out[f"{key}_within_2sigma"] = int(np.sum(err[fin] <= 2.0 * np.nan_to_num(sig[fin], nan=np.inf)))
+            out[f"{key}_sigma_pixels"] = int(fin.sum())
     if kind == "spectral":
         from thinfilm.core.film import Film, as_index
 
@@ -179,6 +187,27 @@ def score(dataset: Path, estimate, kind: str, mirror_equivalent: bool = False) -
         est = Film.single(as_index(estimate.film_ior, "estimate"), None, 1.5).effective_index()
         out["film_ior_error"] = abs(est - true)
     return out
+
+
+def pool_calibration(calibration: dict, key: str, s: dict) -> str:
+    """Adds a score's σ calibration counts (:func:`score`) to ``calibration[key]`` and returns
+    the scene's ``2sigma NORMAL/THICKNESS`` text ("" without σ)."""
+    if "normal_sigma_pixels" not in s:
+        return ""
+    cal = calibration.setdefault(key, {"normal": [0, 0], "thickness": [0, 0]})
+    fr = []
+    for q in ("normal", "thickness"):
+        cal[q][0] += s[f"{q}_within_2sigma"]
+        cal[q][1] += s[f"{q}_sigma_pixels"]
+        fr.append(s[f"{q}_within_2sigma"] / max(1, s[f"{q}_sigma_pixels"]))
+    return f" 2sigma {fr[0]:.3f}/{fr[1]:.3f}"
+
+
+def print_calibration(calibration: dict):
+    """The pooled σ calibration of :func:`pool_calibration`, one line per method."""
+    for k, cal in calibration.items():
+        print(f"calibration {k}: error within 2 sigma for " + ", ".join(
+            f"{q} {v[0] / max(1, v[1]):.3f} of {v[1]} pixels" for q, v in cal.items()))
 
 
 def passes(kind: str, s: dict) -> bool:
@@ -217,6 +246,7 @@ def main(argv=None):
     work.mkdir(parents=True, exist_ok=True)
     results = []
     counts = {}
+    calibration = {}
     print(f"sweep seed {args.seed}: {args.count} scenes at {args.resolution} px in {work}")
     for i, spec in enumerate(specs):
         if args.only is not None and i not in args.only:
@@ -263,6 +293,8 @@ def main(argv=None):
                 counts[key][0] += ok
                 counts[key][1] += ok and not s.get("mirror", False)
                 counts[key][2] += 1
+                if "error" not in s:
+                    s["calibration_text"] = pool_calibration(calibration, key, s)
         results.append(row)
         parts = []
         for key, s in row.items():
@@ -275,10 +307,11 @@ def main(argv=None):
                     f"{'(mirror) ' if s.get('mirror') else ''}t {s['thickness_mean']:.1f}")
             if "film_ior_error" in s:
                 text += f" n2 {s['film_ior_error']:.3f} cov {s['coverage']:.2f}"
-            parts.append(text + f" ({s['seconds']:.1f}s)")
+            parts.append(text + s.pop("calibration_text", "") + f" ({s['seconds']:.1f}s)")
         print(f"{i:2d} {row['scene']}\n     " + "\n     ".join(parts), flush=True)
     print("passed: " + ", ".join(f"{k} {v[0]}/{v[2]}" for k, v in counts.items()))
     print("passed without the sheets' mirror images: " + ", ".join(f"{k} {v[1]}/{v[2]}" for k, v in counts.items()))
+    print_calibration(calibration)
     if args.json:
         Path(args.json).write_text(json.dumps({"seed": args.seed, "results": results, "counts": counts}, indent=1))
     return 0

@@ -59,7 +59,8 @@ from .conventions import stokes_design_matrix
 from .model import ObservationModel, state_from_normals, view_frames
 from .noise import capture_variance, exposure_gains
 
-__all__ = ["CAPTURES", "ZENITH_RANGE_DEG", "double_angle_from_normals", "normal_jacobian", "pixel_bound"]
+__all__ = ["CAPTURES", "ZENITH_RANGE_DEG", "double_angle_from_normals", "normal_jacobian", "image_plane_jacobian",
+           "angle_sigma_deg", "pixel_bound"]
 
 #: the captures a bound is computed for
 CAPTURES = ("polarized_rgb", "stokes", "spectral_s")
@@ -91,6 +92,26 @@ def normal_jacobian(v) -> np.ndarray:
         du_dv = v / u[:, None]
         dphi_dv = 0.5 * np.stack([-v[:, 1], v[:, 0]], axis=1) / (u * u)[:, None]
     return dn_du[:, :, None] * du_dv[:, None, :] + dn_dphi[:, :, None] * dphi_dv[:, None, :]
+
+
+def image_plane_jacobian(nxy) -> np.ndarray:
+    """``∂n/∂(a, b)`` (N, 3, 2) of the unit normal ``n = (a, b, sqrt(1 - a² - b²))`` with
+    image-plane part ``(a, b)`` (N, 2)."""
+    nxy = np.asarray(nxy, dtype=np.float64)
+    nz = np.sqrt(np.clip(1.0 - np.sum(nxy ** 2, axis=1), 1e-12, 1.0))
+    J = np.zeros((nxy.shape[0], 3, 2))
+    J[:, 0, 0] = J[:, 1, 1] = 1.0
+    J[:, 2, :] = -nxy / nz[:, None]
+    return J
+
+
+def angle_sigma_deg(jacobian, cov) -> np.ndarray:
+    """The RMS angle (degrees) between a unit normal and its estimate, ``sqrt(trace(J C Jᵀ))``,
+    of a normal whose parameters have covariance ``cov`` (N, P, P) and Jacobian ``∂n/∂p``
+    (N, 3, P) (:func:`normal_jacobian`, :func:`image_plane_jacobian`); NaN where ``cov`` is."""
+    var = np.einsum("nip,npq,niq->n", jacobian, cov, jacobian)
+    with np.errstate(invalid="ignore"):
+        return np.degrees(np.sqrt(np.maximum(var, 0.0) + np.where(np.isnan(var), np.nan, 0.0)))
 
 
 def _gains(images, noise):

@@ -1,8 +1,12 @@
 """Estimate folders (``docs/design.md``, *Estimate folder*): ``estimate.exr``,
 ``estimate.json`` and an optional ``surface.ply``.
 
-``estimate.exr`` holds :data:`ESTIMATE_CHANNELS` and, when the estimate has a height field,
-``height`` (scene units); every channel but ``valid`` is NaN off the valid pixels.
+``estimate.exr`` holds :data:`ESTIMATE_CHANNELS`; when the estimate has a height field,
+``height`` (scene units); and when the estimator reports its uncertainty, the
+:data:`SIGMA_CHANNELS` ``normal_sigma_deg`` (the RMS angle between the estimated and the true
+normal, ``sqrt(trace)`` of the normal's 2 x 2 covariance, in degrees) and
+``thickness_sigma_nm`` (a standard deviation, nm). Every channel but ``valid`` is NaN off the
+valid pixels.
 ``estimate.json`` holds ``format`` (:data:`ESTIMATE_FORMAT`), ``method``, ``film_ior``,
 ``substrate_ior``, ``pixel_size`` (scene units per pixel of ``height``), ``timings_s`` and the
 method's other entries. An estimate read back (:func:`read_estimate`) is the one written, in
@@ -26,12 +30,14 @@ from .errors import UserError
 from .exr import read_exr, write_exr
 from .files import read_json, write_json
 
-__all__ = ["ESTIMATE_FORMAT", "ESTIMATE_CHANNELS", "Estimate", "write_estimate", "read_estimate", "height_to_mesh"]
+__all__ = ["ESTIMATE_FORMAT", "ESTIMATE_CHANNELS", "SIGMA_CHANNELS", "Estimate", "write_estimate", "read_estimate", "height_to_mesh"]
 
 #: the ``format`` of ``estimate.json``
 ESTIMATE_FORMAT = "thinfilm-estimate/1"
 #: the channels every ``estimate.exr`` holds (``height`` too when there is a height field)
 ESTIMATE_CHANNELS = ("normal.X", "normal.Y", "normal.Z", "zenith", "azimuth", "thickness", "valid")
+#: the uncertainty channels an ``estimate.exr`` may hold (all or none)
+SIGMA_CHANNELS = ("normal_sigma_deg", "thickness_sigma_nm")
 
 
 @dataclass
@@ -48,6 +54,10 @@ class Estimate:
     height : (H, W) height field in scene units (``pixel_size`` per pixel), or None.
     pixel_size : scene units per pixel of ``height``.
     info : more entries for ``estimate.json`` (``method``, ``timings_s``, diagnostics).
+    normal_sigma_deg : (H, W) the normal's uncertainty (RMS angle, degrees), or None.
+    thickness_sigma_nm : (H, W) the thickness's standard deviation (nm), or None. An
+        estimator that cannot resolve a pixel's thickness (an order of interference left
+        open) says so with a large or infinite σ there.
     """
 
     normals: np.ndarray
@@ -58,6 +68,8 @@ class Estimate:
     height: np.ndarray | None = None
     pixel_size: float = 1.0
     info: dict = field(default_factory=dict)
+    normal_sigma_deg: np.ndarray | None = None
+    thickness_sigma_nm: np.ndarray | None = None
 
     @property
     def zenith_azimuth_deg(self):
@@ -121,6 +133,12 @@ def write_estimate(folder, estimate: Estimate) -> Path:
     }
     if estimate.height is not None:
         channels["height"] = np.where(valid, estimate.height, nan)
+    sigmas = (estimate.normal_sigma_deg, estimate.thickness_sigma_nm)
+    if any(v is not None for v in sigmas):
+        if any(v is None for v in sigmas):
+            raise ValueError("an estimate reports both normal_sigma_deg and thickness_sigma_nm, or neither")
+        for name, v in zip(SIGMA_CHANNELS, sigmas):
+            channels[name] = np.where(valid, np.asarray(v, dtype=np.float64), nan)
     write_exr(folder / "estimate.exr", channels)
     write_json(folder / "estimate.json", estimate.json())
     if estimate.height is not None and valid.sum() >= 4:
@@ -140,7 +158,11 @@ def read_estimate(path) -> Estimate:
     exr = root / "estimate.exr"
     ch = read_exr(exr)
     shape = None
-    for name in (*ESTIMATE_CHANNELS, "height"):
+    sigmas = [name for name in SIGMA_CHANNELS if name in ch]
+    if sigmas and len(sigmas) != len(SIGMA_CHANNELS):
+        missing = next(name for name in SIGMA_CHANNELS if name not in ch)
+        raise UserError(f"{exr}: channel '{sigmas[0]}' without '{missing}'")
+    for name in (*ESTIMATE_CHANNELS, "height", *sigmas):
         if name not in ch:
             if name == "height":
                 continue
@@ -164,4 +186,5 @@ def read_estimate(path) -> Estimate:
     normals = np.stack([ch["normal.X"], ch["normal.Y"], ch["normal.Z"]], axis=-1)
     return Estimate(normals=normals, thickness_nm=ch["thickness"], valid=ch["valid"] > 0.5,
                     film_ior=info.pop("film_ior", None), substrate_ior=info.pop("substrate_ior", None),
-                    height=ch.get("height"), pixel_size=float(pixel_size), info=info)
+                    height=ch.get("height"), pixel_size=float(pixel_size), info=info,
+                    normal_sigma_deg=ch.get("normal_sigma_deg"), thickness_sigma_nm=ch.get("thickness_sigma_nm"))

@@ -12,6 +12,9 @@ Index values (:func:`as_index`) may be given as
 * a complex index ``"n+ki"`` (``"1.65+0.01i"``, k >= 0 absorbing);
 * a shipped material name (``"MgF2"``; :func:`thinfilm.bsdf.material_names`), which
   brings its own dispersion and extinction;
+* a refractiveindex.info material (``"TiO2"``, ``"main/TiO2/Sarkar"``:
+  :func:`thinfilm.bsdf.materials.database_material`), written back as its full page, and
+  listed with the database version under ``film.material_sources`` of :meth:`Film.to_meta`;
 * a Cauchy table ``{"cauchy": [A, B, C]}``, ``n = A + B/λ² + C/λ⁴`` with λ in **µm**, the one
   unit of Cauchy coefficients everywhere (:class:`thinfilm.bsdf.Cauchy`, :func:`cauchy_index`;
   ``thinfilm fit-spectrum --film-ior cauchy:A,B[,C]``); B and C plainly given with λ in nm
@@ -270,11 +273,15 @@ class Film:
         readers of single-film datasets."""
         sub = index_to_json(self.substrate)
         sub_n = sub["n"] if isinstance(sub, dict) and "n" in sub else sub
+        # the database pages used (a page's name is its shelf/book/page), with the database version
+        sources = {m.name: m.source for m in [layer.material for layer in self.layers] + [self.substrate]
+                   if getattr(m, "source", "")}
         return {
             "film": {"layers": [{"ior": index_to_json(layer.material), "thickness_nm": layer.thickness_nm}
                                 for layer in self.layers],
                      "substrate": {"ior": sub},
-                     "ext_ior": self.ext_ior},
+                     "ext_ior": self.ext_ior,
+                     **({"material_sources": sources} if sources else {})},
             # a stack's top layer, for readers of single-film datasets
             "film_ior": index_to_json(self.layers[0].material),
             "substrate_ior": sub_n,
@@ -314,7 +321,10 @@ class Film:
     @property
     def absorbing_substrate(self) -> bool:
         """Whether the substrate has k > 0 anywhere in 300-1000 nm."""
-        return bool(np.any(self.substrate_n_k(np.linspace(300.0, 1000.0, 141))[1] > 0))
+        lo, hi = 300.0, 1000.0
+        if hasattr(self.substrate, "range_nm"):  # a database page: within its own range
+            lo, hi = max(lo, self.substrate.range_nm[0]), min(hi, self.substrate.range_nm[1])
+        return bool(np.any(self.substrate_n_k(np.linspace(lo, hi, 141))[1] > 0))
 
     def reflectances(self, cos_theta, wavelength_nm, thickness_nm=None):
         """Power reflectances ``(R_s, R_p)`` through the optics core.
@@ -395,10 +405,11 @@ class Film:
             if thickness_scale is not None:
                 out["thickness_scale"] = thickness_scale
         sub = self.substrate
-        if not isinstance(sub, Constant):
-            raise NotImplementedError("dispersive substrates in the plugin (give a number)")
-        out["substrate_ior"] = float(sub.n)
-        out["substrate_k"] = float(sub.k)
+        if isinstance(sub, Constant):
+            out["substrate_ior"] = float(sub.n)
+            out["substrate_k"] = float(sub.k)
+        else:  # a material name (a Cauchy model has no plugin form)
+            out["substrate_ior"] = _plugin_index_text(sub)
         if roughness > 0:
             out["alpha"] = roughness
         return out

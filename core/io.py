@@ -32,7 +32,7 @@ from __future__ import annotations
 
 from .dataset import (FORMAT, GROUND_TRUTH_CHANNELS, Dataset, dataset_meta, read_dataset, software_versions,
                       write_dataset)
-from .estimate import ESTIMATE_CHANNELS, ESTIMATE_FORMAT, Estimate, height_to_mesh, read_estimate, write_estimate
+from .estimate import ESTIMATE_CHANNELS, ESTIMATE_FORMAT, SIGMA_CHANNELS, Estimate, height_to_mesh, read_estimate, write_estimate
 from .evaluation_files import read_metrics, write_evaluation_files
 from .exr import (band_channel, band_channels, pol_layer, polarized_rgb_channels, read_exr, set_exr_threads,
                   write_exr)
@@ -46,6 +46,7 @@ __all__ = [
     "ESTIMATE_FORMAT",
     "Dataset",
     "Estimate",
+    "SIGMA_CHANNELS",
     "read_exr",
     "write_exr",
     "set_exr_threads",

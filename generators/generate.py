@@ -221,6 +221,11 @@ def generate_dataset(spec, out_dir, progress: bool = True, inputs=()) -> dict:
     """
     from thinfilm.core.outputs import atomic_output_dir
 
+    if spec.rig.sensor == "dofp-rgb":  # before any rendering: raw.tiff is written with tifffile
+        from .sensor import RAW_WRITER_EXTRA
+        from thinfilm.core.extras import require_extra
+
+        require_extra("tifffile", RAW_WRITER_EXTRA, what='rig.sensor = "dofp-rgb" (raw.tiff)')
     with atomic_output_dir(out_dir, command="generate", inputs=[*spec_input_files(spec), *inputs]) as tmp:
         sim = simulate(spec, progress=progress)
         timings = dict(sim["timings_s"])

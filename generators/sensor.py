@@ -36,7 +36,11 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["SENSORS", "RAW_FILE", "raw_channel_response", "dofp_raw", "write_raw_tiff"]
+__all__ = ["SENSORS", "RAW_FILE", "RAW_WRITER_EXTRA", "raw_channel_response", "dofp_raw", "write_raw_tiff"]
+
+#: the extra that installs ``tifffile``, which writes ``raw.tiff`` (the file that ``thinfilm
+#: import polarization`` reads back with the same extra)
+RAW_WRITER_EXTRA = "import"
 
 SENSORS = ("ideal", "dofp-rgb")
 RAW_FILE = "raw.tiff"
@@ -125,8 +129,11 @@ def dofp_raw(stokes: dict, wavelengths_nm, camera: str, illuminant: str, mask, n
 
 
 def write_raw_tiff(path, raw: np.ndarray, description: str = "") -> Path:
-    """Write a raw image as an uncompressed 16-bit grayscale TIFF (deterministic bytes)."""
-    import tifffile
+    """Write a raw image as an uncompressed 16-bit grayscale TIFF (deterministic bytes), with
+    ``tifffile`` (the ``import`` extra, :data:`RAW_WRITER_EXTRA`)."""
+    from thinfilm.core.extras import require_extra
+
+    tifffile = require_extra("tifffile", RAW_WRITER_EXTRA, what='rig.sensor = "dofp-rgb" (raw.tiff)')
 
     path = Path(path)
     tifffile.imwrite(path, np.ascontiguousarray(raw, dtype=np.uint16), photometric="minisblack",

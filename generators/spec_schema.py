@@ -351,18 +351,21 @@ class Checker:
         if kind == "ior":
             if isinstance(value, str):
                 from thinfilm.bsdf import material_names
-                from thinfilm.bsdf.materials import parse_index
+                from thinfilm.bsdf.materials import DatabaseMaterial, parse_index
 
+                if value.strip().lower() in {m.lower() for m in material_names()} and value not in material_names():
+                    # a shipped table by its exact name, as the echo and meta.json write it
+                    self.fail(where, f"a number, 'n+ki', one of {', '.join(material_names())} or a "
+                                     f"refractiveindex.info material", value)
                 try:
                     parsed = parse_index(value)
-                except ValueError:
-                    parsed = None
-                if parsed is None or (hasattr(parsed, "name") and value not in material_names()):
-                    self.fail(where, f"a number, 'n+ki' or one of {', '.join(material_names())}", value)
+                except ValueError as e:
+                    raise UserError(f"{self.source}: '{where}': {e}") from None
                 if hasattr(parsed, "n"):
                     self.bounded(where, parsed.n, "index", "a refractive index")
                     self.bounded(where, parsed.k, "extinction", "an extinction coefficient k")
-                return value
+                # a database material as its full page (shelf/book/page): the echo records the page used
+                return parsed.name if isinstance(parsed, DatabaseMaterial) else value
             v = self.number(where, value)
             lo, hi = LIMITS["index"]
             if not lo <= v <= hi:
@@ -514,7 +517,31 @@ def resolve(raw: dict, c: "Checker") -> dict:
         raise UserError(f"{c.source}: 'noise.bits' must be at most 16 with rig.sensor = \"dofp-rgb\" "
                         f"(raw.tiff is a 16-bit file), got {out['noise']['bits']}")
     _check_size(out["rig"], c)
+    _check_material_ranges(out, c)
     return out
+
+
+def _check_material_ranges(out: dict, c) -> None:
+    """A database material must cover every wavelength the generator renders (the bands and
+    their passbands): refused in one line naming its range, before anything is rendered."""
+    film = out["film"]
+    named = [("film.ior", film.get("ior"))] + [(f"film.layers[{i}].ior", layer["ior"])
+                                               for i, layer in enumerate(film.get("layers", []))]
+    named = [(where, value) for where, value in named if isinstance(value, str)]
+    if not named:
+        return
+    from thinfilm.bsdf.materials import DatabaseMaterial, parse_index
+    from thinfilm.core.bands import passband_quadrature
+
+    rig = out["rig"]
+    sub_nm, _ = passband_quadrature(wavelength_grid(rig), rig["band_fwhm_nm"], rig["passband"])
+    for where, value in named:
+        material = parse_index(value)
+        if isinstance(material, DatabaseMaterial):
+            try:
+                material.check_range(float(sub_nm[0]), float(sub_nm[-1]), "the rendered wavelengths")
+            except ValueError as e:
+                raise UserError(f"{c.source}: '{where}': {e}") from None
 
 
 def _renders_per_image(rig: dict) -> int:

@@ -266,6 +266,7 @@ def reconstruct_coherent(capture: RGBCapture, progress: bool = False, rounds: in
     t = time.perf_counter()
     height = None
     cost = fit.cost
+    final_info = fit.info
     for _ in range(rounds):
         normals = angles_to_normals(zen, np.nan_to_num(az))
         nz = np.clip(normals[..., 2], 0.0, 1.0)
@@ -296,6 +297,7 @@ def reconstruct_coherent(capture: RGBCapture, progress: bool = False, rounds: in
         az_new = np.mod(refit.azimuth_deg + np.where(dot < 0, 180.0, 0.0), 360.0)
         zen[mask], az[mask], thick[mask] = refit.zenith_deg, az_new, refit.thickness_nm
         cost = refit.data_cost
+        final_info = refit.info
         bar.update(1)
     bar.close()
     # The exported surface: every final normal is now good (data plus surface prior), so they
@@ -313,6 +315,12 @@ def reconstruct_coherent(capture: RGBCapture, progress: bool = False, rounds: in
     ok = np.isfinite(chi2) & (chi2 < max_chi2)
     valid = np.zeros(mask.shape, dtype=bool)
     valid[mask] = ok
+    normal_sigma, thickness_sigma = _uncertainty(zen[mask], az[mask], thick[mask], final_info, sigma,
+                                                 cost / sigma ** 2, max(3 * K - 3, 1),
+                                                 basins if open_orders > OPEN_ORDERS_WARN else None)
+    sig_n = np.full(mask.shape, np.nan)
+    sig_d = np.full(mask.shape, np.nan)
+    sig_n[mask], sig_d[mask] = normal_sigma, thickness_sigma
     from .rgb_capture import warn_if_outside_range
 
     warn_if_outside_range(capture, thick[mask], ok, open_orders)
@@ -321,4 +329,36 @@ def reconstruct_coherent(capture: RGBCapture, progress: bool = False, rounds: in
             "notes": "coherent Airy model inverted jointly per pixel (zenith, azimuth, thickness), "
                      "then integrated to one surface and re-fitted with surface and thickness priors"}
     return Estimate(normals, np.where(mask, thick, 0.0), valid, capture.info["film_ior"],
-                    capture.info["substrate_ior"], height * capture.pixel_size, capture.pixel_size, info)
+                    capture.info["substrate_ior"], height * capture.pixel_size, capture.pixel_size, info,
+                    normal_sigma_deg=sig_n, thickness_sigma_nm=sig_d)
+
+
+def _uncertainty(zenith_deg, azimuth_deg, thickness_nm, info, sigma, chi2, dof, basins=None):
+    """Each pixel's ``(normal σ in degrees, thickness σ in nm)`` from the final fit: the
+    inverse of its Gauss-Newton matrix in (v1, v2, d) (data and priors, in units of the
+    residuals) times the noise variance ``sigma²``, inflated by the fit's reduced χ² where the
+    data fit worse than the noise (``chi2`` = data cost in noise units, ``dof`` degrees of
+    freedom). With ``basins`` (the candidates' thicknesses and misfits, given where most
+    pixels leave their order of interference open), the thickness σ also holds the spread of
+    the pixel's candidate orders, weighted by their likelihood."""
+    from thinfilm.core.bound import angle_sigma_deg, normal_jacobian
+
+    u = np.sin(np.radians(zenith_deg)) ** 2
+    phi = np.radians(azimuth_deg)
+    v = np.stack([u * np.cos(2 * phi), u * np.sin(2 * phi)], axis=1)
+    H = np.asarray(info, dtype=np.float64)
+    cov = np.full(H.shape, np.nan)
+    ok = np.all(np.isfinite(H), axis=(1, 2))
+    ok[ok] &= np.linalg.cond(H[ok]) < 1e14
+    cov[ok] = np.linalg.inv(H[ok]) * sigma ** 2
+    cov *= np.maximum(1.0, np.asarray(chi2, dtype=np.float64) / dof)[:, None, None]
+    normal = angle_sigma_deg(normal_jacobian(v), cov[:, :2, :2])
+    var_d = cov[:, 2, 2]
+    if basins is not None:
+        values, costs = basins
+        with np.errstate(invalid="ignore", over="ignore"):
+            w = np.exp(-0.5 * (costs - np.min(costs, axis=1, keepdims=True)))
+            w = np.where(np.isfinite(values), w, 0.0)
+            w /= np.maximum(np.sum(w, axis=1, keepdims=True), 1e-300)
+            var_d = var_d + np.sum(w * np.nan_to_num(values - thickness_nm[:, None]) ** 2, axis=1)
+    return normal, np.sqrt(var_d)

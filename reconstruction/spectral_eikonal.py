@@ -30,7 +30,7 @@ from . import eikonal as _eik
 from . import spectral_model as _sm
 from .peaks import PEAK_NONE, PEAK_OK, PEAK_SEVERAL
 from .spectral_fit import angle_thickness_lm, estimate_film_ior_either_side, extrema_angles, fit_no_peak, \
-    initial_thickness, sigma_theta, thickness_at, thickness_limits
+    index_thickness_sigma, initial_thickness, sigma_theta, thickness_at, thickness_limits
 
 __all__ = ["reconstruct_eikonal", "unfold_magnitude"]
 
@@ -154,7 +154,7 @@ def reconstruct_eikonal(cube, wavelengths_nm, substrate_ior, mask, smoothness=10
     p, q = _eik.height_gradient(z, mask)
     theta_z = np.arctan(np.hypot(p, q))
     # blend: the pixel's own angle where it is precise, the surface's elsewhere
-    sig_z = np.radians(1.0)
+    sig_z = SURFACE_SIGMA_RAD
     w_d = 1.0 / sig_img ** 2
     w_z = 1.0 / sig_z ** 2
     theta_fin = (w_d * theta_img + w_z * theta_z) / (w_d + w_z)
@@ -171,9 +171,62 @@ def reconstruct_eikonal(cube, wavelengths_nm, substrate_ior, mask, smoothness=10
     t["thickness"] = time.perf_counter() - t0
     thickness = np.full(mask.shape, np.nan)
     thickness[mask] = d_fin
+    sig_n, sig_d = _uncertainty(mask, sig_img, theta_img, theta_z, neq, wl.size)
+    sig_d[mask] = np.hypot(sig_d[mask], index_thickness_sigma(d_fin, theta_fin[mask], n2))
     valid = mask & np.isfinite(thickness) & np.isfinite(z)
     info = {"peaks": stats, "timings_s": t, **n2_info, "capture": "s",
             "seeds": seed_kind, "smoothness": smoothness,
             "thickness_range_nm": [limits.lo, limits.upper(n2)]}
     return Estimate(normals=normals, thickness_nm=thickness, valid=valid, film_ior=float(n2),
-                    substrate_ior=float(substrate_ior), height=z, info=info)
+                    substrate_ior=float(substrate_ior), height=z, info=info, normal_sigma_deg=sig_n,
+                    thickness_sigma_nm=sig_d)
+
+
+#: the blend scale of step 3 (radians): the weight of the refined surface's zenith against each
+#: pixel's own
+SURFACE_SIGMA_RAD = float(np.radians(1.0))
+
+#: side of the window (pixels) over which the surface's own error is measured
+SURFACE_ERROR_WINDOW = 9
+
+#: pixels whose own angle is known better than this (radians) measure the surface's error
+PRECISE_ANGLE_RAD = float(np.radians(0.5))
+
+
+def surface_angle_sigma(mask, sig_img, theta_img, theta_z, window=SURFACE_ERROR_WINDOW):
+    """The refined surface's angular error (radians, (H, W)), measured where the data are
+    precise: the local mean square of ``theta_img - theta_z`` less the pixels' own variance,
+    over a ``window``-pixel square of the pixels whose angle is known to
+    :data:`PRECISE_ANGLE_RAD`. Pixels with none near take the largest local value of the
+    object (a surface carried over a region where the spectra say little is as uncertain as
+    its worst-measured part)."""
+    from scipy.ndimage import uniform_filter
+
+    precise = mask & (sig_img < PRECISE_ANGLE_RAD) & np.isfinite(theta_z)
+    r2 = np.where(precise, (theta_img - np.nan_to_num(theta_z)) ** 2, 0.0)
+    s2 = np.where(precise, sig_img ** 2, 0.0)
+    w = uniform_filter(precise.astype(np.float64), window, mode="constant")
+    with np.errstate(invalid="ignore", divide="ignore"):
+        local = (uniform_filter(r2, window, mode="constant") - uniform_filter(s2, window, mode="constant")) / w
+    enough = mask & (w * window * window >= 5)
+    local = np.sqrt(np.clip(np.nan_to_num(local), 0.0, None))
+    worst = float(np.max(local[enough])) if enough.any() else SURFACE_SIGMA_RAD
+    return np.where(enough, np.maximum(local, np.radians(0.05)), worst)
+
+
+def _uncertainty(mask, sig_img, theta_img, theta_z, neq, bands):
+    """Each pixel's ``(normal σ in degrees, thickness σ in nm)`` (H, W). The zenith: the
+    precision-weighted blend of the pixel's own angle (σ ``sig_img``) and the surface's
+    (:func:`surface_angle_sigma`); across the gradient, where the s spectra say nothing, the
+    surface's error alone (taken as isotropic). The thickness: its variance at fixed angle
+    from the fit's normal equations ``neq`` ([a11 a12 a22 g1 g2 sse], the noise from the
+    residuals), plus what the final angle's σ carries through the fit's θ-d coupling."""
+    sig_s = surface_angle_sigma(mask, sig_img, theta_img, theta_z)[mask]
+    sig_theta = 1.0 / np.sqrt(1.0 / sig_img[mask] ** 2 + 1.0 / sig_s ** 2)
+    sig_n = np.full(mask.shape, np.nan)
+    sig_n[mask] = np.degrees(np.hypot(sig_theta, sig_s))
+    var = neq[:, 5] / max(bands - 2, 1)
+    a12, a22 = neq[:, 1], np.maximum(neq[:, 2], 1e-300)
+    sig_d = np.full(mask.shape, np.nan)
+    sig_d[mask] = np.sqrt(var / a22 + (a12 / a22) ** 2 * sig_theta ** 2)
+    return sig_n, sig_d

@@ -402,9 +402,27 @@ def reconstruct_stokes(stokes, wavelengths_nm, substrate_ior, mask, smoothness=2
     t["thickness"] = time.perf_counter() - t0
     thickness = np.full(mask.shape, np.nan)
     thickness[mask] = d_f
+    chi2 = cost / (3 * b * noise ** 2)
+    # 5. uncertainty: the fused normal's covariance (data and surface), inflated by the fit's
+    # reduced chi2 where the data fit worse than the noise; the thickness's conditional
+    # variance at fixed normal plus what the final normal's uncertainty carries through the
+    # fit's d-v coupling
+    inflate = np.maximum(1.0, chi2)
+    C_ab = np.linalg.inv(In / inflate[:, None, None] + np.eye(2)[None] / surface_sigma ** 2)
+    from thinfilm.core.bound import angle_sigma_deg, image_plane_jacobian
+
+    sig_n = np.full(mask.shape, np.nan)
+    sig_n[mask] = angle_sigma_deg(image_plane_jacobian(nxy), C_ab)
+    a_f, b_f = nxy[:, 0], nxy[:, 1]
+    Jv = 2.0 * np.stack([np.stack([a_f, -b_f], -1), np.stack([b_f, a_f], -1)], axis=-2)   # dv/d(a, b)
+    C_v = np.einsum("nik,nkl,njl->nij", Jv, C_ab, Jv)
+    g = -H[:, 2, :2] / np.maximum(H[:, 2, 2], 1e-300)[:, None]
+    var_d = (inflate * noise ** 2 / np.maximum(H[:, 2, 2], 1e-300) + np.einsum("ni,nij,nj->n", g, C_v, g)
+             + _sf.index_thickness_sigma(d_f, th_f, n2) ** 2)
+    sig_d = np.full(mask.shape, np.nan)
+    sig_d[mask] = np.sqrt(var_d)
     # pixels the model cannot explain (an inter-reflection in a concave part, a rim the
     # light grazes) are reported invalid
-    chi2 = cost / (3 * b * noise ** 2)
     explained = np.zeros(mask.shape, dtype=bool)
     explained[mask] = chi2 < max_chi2
     valid = mask & np.isfinite(thickness) & explained
@@ -413,4 +431,4 @@ def reconstruct_stokes(stokes, wavelengths_nm, substrate_ior, mask, smoothness=2
             "unexplained_pixels": int(np.sum(chi2 >= max_chi2)),
             "smoothness": smoothness, "thickness_range_nm": [limits.lo, limits.upper(n2)]}
     return Estimate(normals=out_n, thickness_nm=thickness, valid=valid, film_ior=float(n2),
-                    substrate_ior=n3, height=height, info=info)
+                    substrate_ior=n3, height=height, info=info, normal_sigma_deg=sig_n, thickness_sigma_nm=sig_d)

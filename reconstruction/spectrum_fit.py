@@ -95,7 +95,7 @@ Examples
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -191,7 +191,7 @@ class FilmModel:
             if isinstance(sub, Constant):
                 sub = Constant(sub.n, k)
             elif isinstance(sub, Tabulated):
-                sub = Tabulated(sub.name, sub.start_nm, sub.step_nm, sub.n_values, (k,) * len(sub.n_values))
+                sub = replace(sub, k_values=(k,) * len(sub.n_values))
             else:
                 raise ValueError("substrate_k needs a numeric or tabulated substrate index")
         return Film((Layer(self.film_ior),), sub, float(self.ext_ior))

@@ -120,6 +120,16 @@ def test_evaluate_reports_the_bound_of_the_capture_the_estimate_used(tmp_path):
         assert 0 < m["crlb_thickness_nm"]["rms"] < 10 and info["pixels"] > 100
         assert m["efficiency_normal"] == pytest.approx(m["crlb_normal_deg"]["rms"] / m["normal_error_rms_deg"])
         seen[kind] = (info["capture"], m["crlb_thickness_nm"]["rms"])
+        # the default reports its σ, and evaluate scores it: the share of pixels within 2 σ,
+        # recomputed here from the error maps and the estimate's channels
+        from thinfilm.core.io import read_estimate, read_exr
+
+        est = read_estimate(tmp_path / kind)
+        err = read_exr(tmp_path / f"ev_{kind}" / "errors.exr")
+        sel = err["mask"] > 0.5
+        want = np.mean(err["thickness_error_nm"][sel] <= 2 * est.thickness_sigma_nm[sel])
+        assert m["thickness_within_2sigma"] == pytest.approx(want, abs=1e-6)
+        assert 0.0 < m["normal_within_2sigma"] <= 1.0
     assert seen["spectral"][0] == "stokes" and seen["rgb"][0] == "polarized_rgb"
     assert seen["spectral"][1] < seen["rgb"][1]  # 81 bands know the thickness better than 3 colours
     clean = tmp_path / "clean"

@@ -236,3 +236,34 @@ def test_exr_bytes_do_not_depend_on_the_thread_count(tmp_path):
     assert data[0] == data[1] == data[2]
     back = read_exr(paths[0])
     assert all(np.array_equal(back[k], v) for k, v in channels.items())
+
+
+def test_an_estimates_uncertainty_channels_read_back(tmp_path):
+    """normal_sigma_deg and thickness_sigma_nm are written when the estimate has them, NaN off
+    the valid pixels, and read back; one without the other is refused."""
+    import dataclasses
+
+    from thinfilm.core.errors import UserError
+    from thinfilm.core.io import SIGMA_CHANNELS, read_exr, write_exr
+
+    est = _estimate()
+    rng = np.random.default_rng(3)
+    est = dataclasses.replace(est, normal_sigma_deg=rng.uniform(0.1, 2.0, est.valid.shape),
+                              thickness_sigma_nm=rng.uniform(0.5, 9.0, est.valid.shape))
+    write_estimate(tmp_path, est)
+    back = read_estimate(tmp_path)
+    for name in ("normal_sigma_deg", "thickness_sigma_nm"):
+        got, want = getattr(back, name), getattr(est, name)
+        np.testing.assert_array_equal(got[est.valid], want[est.valid].astype(np.float32))
+        assert np.isnan(got[~est.valid]).all()
+    ch = read_exr(tmp_path / "estimate.exr")
+    assert set(SIGMA_CHANNELS) <= set(ch)
+    del ch["thickness_sigma_nm"]
+    write_exr(tmp_path / "estimate.exr", ch)
+    with pytest.raises(UserError, match="normal_sigma_deg.*thickness_sigma_nm"):
+        read_estimate(tmp_path)
+    with pytest.raises(ValueError, match="both"):
+        write_estimate(tmp_path, dataclasses.replace(est, thickness_sigma_nm=None))
+    # an estimate without them reads back without them
+    write_estimate(tmp_path, _estimate())
+    assert read_estimate(tmp_path).normal_sigma_deg is None

@@ -309,7 +309,7 @@ def test_cli_evaluate_writes_metrics(tmp_path, capsys):
     code, cap = _run_cli(["evaluate", str(root), str(tmp_path / "est"), "--out", str(tmp_path / "out")], capsys)
     assert code == 0, cap.err
     m = json.loads((tmp_path / "out" / "metrics.json").read_text())
-    assert set(m) == set(ev.METRIC_KEYS) | {"film_ior_error"} | set(ev.BOUND_KEYS)
+    assert set(m) == set(ev.METRIC_KEYS) | {"film_ior_error"} | set(ev.BOUND_KEYS) | set(ev.CALIBRATION_KEYS)
     for key in ev.METRIC_KEYS:
         assert set(m[key]) == {"mean", "median", "p95", "max"}
     assert m["delta_e_ab"]["mean"] <= 0.1

@@ -7,7 +7,8 @@ A signal the command can catch must end it cleanly (exit status 128 + the signal
 ``thinfilm: terminated``), leaving no temporary folder, stage folder or lock behind; after
 SIGKILL the next run cleans what the killed one left. Files that record timings or absolute
 temporary paths (``task.json``, ``results.json``, ``evaluation.json``, ``estimate.json``,
-``report.md``) are compared with those fields left out; every other file byte for byte.
+``report.md``, ``report.html``) are compared with those fields left out; every other file byte
+for byte.
 """
 
 from __future__ import annotations
@@ -114,6 +115,8 @@ def _content(out: Path) -> dict:
             data = _strip(json.loads(data))
         elif p.name == "report.md":
             data = _report_without_timings(data.decode())
+        elif p.name == "report.html":  # its timings are the elements of class "timing"
+            data = re.sub(r'<(td|span) class="timing"[^>]*>.*?</\1>', "", data.decode())
         files[str(p.relative_to(out))] = data
     return files
 

@@ -28,6 +28,8 @@ Output folder::
     DIR/results.json                   every row (case, kind, method, metrics, timings)
     DIR/report.md                      leaderboards per kind, per-scene tables, the paper's
                                        figures beside ours, figures, failures, timings
+    DIR/report.html                    the leaderboards and tasks for a browser: sortable, filtered
+                                       by scene and method, a view per task (thinfilm.report_html)
 
 Each task folder is written to a temporary folder and renamed into place with its marker
 ``task.json`` last, so a folder is there complete or not at all. ``--resume`` keeps the
@@ -65,6 +67,7 @@ __all__ = [
     "run_method",
     "run_benchmark",
     "write_report",
+    "write_report_html",
     "cli_main",
 ]
 
@@ -503,6 +506,7 @@ def _run(folder, plan, suite, resume, workers, scheduler, progress, baseline, fi
         results["gate"] = compare(results, baseline)
     folder.write_text("results.json", json.dumps(results, indent=2, sort_keys=True) + "\n")
     folder.write_text("report.md", write_report(results))
+    folder.write_text("report.html", write_report_html(results, root))
     return results
 
 
@@ -733,6 +737,21 @@ def write_report(results: dict) -> str:
     return "\n".join(lines)
 
 
+def write_report_html(results: dict, root=None) -> str:
+    """The HTML text of ``report.html`` (:mod:`thinfilm.report_html`): the leaderboards of
+    every kind, over all scenes and over each, the tasks, and a view per task. ``root``: the
+    output folder, so that the report shows only the figures there."""
+    from thinfilm.report_html import render_report_html
+
+    rows = results["rows"]
+    boards = {}
+    for kind in ("rgb", "spectral"):
+        scenes = dict.fromkeys(r["scene"] for r in rows if r["kind"] == kind)
+        boards[kind] = {"": leaderboard(results, kind)}
+        boards[kind].update({s: leaderboard({"rows": [r for r in rows if r["scene"] == s]}, kind) for s in scenes})
+    return render_report_html(results, boards, root)
+
+
 # -- command line ----------------------------------------------------------------------------------
 
 def _method_list(text):
@@ -759,9 +778,9 @@ def cli_main(args) -> int:
     if scheduler is not None and workers is not None:
         raise UserError("--workers and --scheduler: give one of them (a scheduler's cluster has its own workers)")
     if scheduler is None and workers is None:
-        from thinfilm.cluster import default_workers
+        from thinfilm.cluster import auto_workers
 
-        workers = default_workers()
+        workers = auto_workers()
     results = run_benchmark(out, suite=getattr(args, "suite", None) or "presets", quick=args.quick,
                             methods=_method_list(getattr(args, "methods", None)),
                             resolution=getattr(args, "resolution", None), resume=getattr(args, "resume", False),

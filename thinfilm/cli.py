@@ -525,6 +525,12 @@ def _run(argv) -> int:
 
             print(f"thinfilm: error: {_one_line(path_error(e.filename, 'file', e))}", file=sys.stderr)
             return 2
+        from .bsdf.materials import WavelengthRangeError
+
+        if isinstance(e, WavelengthRangeError):
+            # a material met wavelengths outside its table (the inputs ask for them): no bug
+            print(f"thinfilm: error: {_one_line(e)}", file=sys.stderr)
+            return 2
         if _debug():
             raise
         what = f"{type(e).__name__}: {e}" if str(e) else type(e).__name__

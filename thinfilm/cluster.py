@@ -5,7 +5,7 @@
 :func:`run_tasks` with an executor from :func:`executor`:
 
 * ``workers=0``: every task in this process, one after another, in the order given (no Dask);
-* ``workers=N`` (default: the number of cores): a local Dask cluster
+* ``workers=N`` (the commands' default: the number of cores, :func:`auto_workers`): a local Dask cluster
   (``distributed.LocalCluster``) of N worker processes with one task thread each, so each
   process holds one Mitsuba; each worker's thread budget (Dr.Jit's and OpenEXR's pools, the
   noise threads: :mod:`thinfilm.core.threads`) is set to ``max(1, cores // N)`` so that the
@@ -17,6 +17,11 @@
   checked first (:func:`scheduler_address`), then the scheduler must answer within
   :data:`CONNECT_TIMEOUT_S` seconds in Dask's protocol (:func:`probe_scheduler`): a peer that
   says nothing or speaks another protocol is refused in one line, never waited on.
+
+Dask comes with the ``cluster`` extra (``pip install 'thinfilm[cluster]'``): without it, a
+local cluster or ``--scheduler`` is refused in one line naming the extra
+(:func:`thinfilm.core.extras.require_extra`), and the commands' default runs every task in
+this process.
 
 Each task function sets the Mitsuba variant it needs itself (workers start with none), and
 writes its own output folder; what it returns (a small dict) comes back to the caller. The
@@ -33,8 +38,10 @@ from pathlib import Path
 
 from thinfilm.core import signals
 from thinfilm.core.errors import UserError
+from thinfilm.core.extras import has_module, require_extra
 
-__all__ = ["Dep", "Task", "Executor", "default_workers", "executor", "run_tasks", "generate_task"]
+__all__ = ["Dep", "Task", "Executor", "default_workers", "auto_workers", "executor", "run_tasks",
+           "generate_task"]
 
 
 @dataclass(frozen=True)
@@ -59,6 +66,23 @@ def default_workers() -> int:
     from thinfilm.core.threads import cores
 
     return cores()
+
+
+def auto_workers() -> int:
+    """The workers of a command given neither ``--workers`` nor ``--scheduler``: one per core
+    (:func:`default_workers`) on a local Dask cluster, or 0 (every task in this process) when
+    the ``cluster`` extra is not installed: a bare installation runs the same tasks, one
+    after another (with a :class:`~thinfilm.core.errors.ThinfilmWarning` saying so)."""
+    if has_module("distributed"):
+        return default_workers()
+    import warnings
+
+    from thinfilm.core.errors import ThinfilmWarning
+    from thinfilm.core.extras import missing_extra_message
+
+    warnings.warn(f"every task runs in this process: a local Dask cluster {missing_extra_message('cluster')}",
+                  ThinfilmWarning, stacklevel=2)
+    return 0
 
 
 def _in_worker(function, drjit_threads, *args):
@@ -98,8 +122,7 @@ def executor(workers: int | None = None, scheduler: str | None = None, max_worke
     ``worker_threads`` sets the Dr.Jit and OpenEXR threads of each of its workers (default
     ``max(1, cores // workers)``)."""
     if scheduler is not None:
-        from distributed import Client
-
+        Client = require_extra("distributed", "cluster", argument="scheduler").Client
         address = scheduler_address(scheduler)
         probe_scheduler(address, scheduler)
         try:
@@ -132,7 +155,8 @@ def executor(workers: int | None = None, scheduler: str | None = None, max_worke
         n = max(1, min(n, int(max_workers)))
     import logging
 
-    from distributed import Client, LocalCluster
+    distributed = require_extra("distributed", "cluster", argument="workers")
+    Client, LocalCluster = distributed.Client, distributed.LocalCluster
 
     threads = max(1, default_workers() // n) if worker_threads is None else max(1, int(worker_threads))
     # The cluster is started and closed whole, a signal meanwhile deferred to the end of the

@@ -44,6 +44,8 @@ from thinfilm.core.variants import RENDER_VARIANT
 __all__ = [
     "METRIC_KEYS",
     "BOUND_KEYS",
+    "CALIBRATION_KEYS",
+    "sigma_calibration",
     "bound_metrics",
     "RENDER_VARIANT",
     "summarize",
@@ -71,6 +73,11 @@ METRIC_KEYS = ("normal_error_deg", "zenith_error_deg", "thickness_error_nm",
 #: ``rms``, the errors' RMS on the same pixels, and the efficiencies (bound RMS / error RMS)
 BOUND_KEYS = ("crlb_normal_deg", "crlb_thickness_nm", "normal_error_rms_deg", "thickness_error_rms_nm",
               "efficiency_normal", "efficiency_thickness")
+
+#: the calibration of an estimate's own σ (:func:`sigma_calibration`): the share of the scored
+#: pixels whose error lies within twice the estimate's ``normal_sigma_deg`` and
+#: ``thickness_sigma_nm`` (0.954 for a Gaussian error of that σ; null without σ channels)
+CALIBRATION_KEYS = ("normal_within_2sigma", "thickness_within_2sigma")
 
 
 # -- statistics and per-pixel errors --------------------------------------------------------
@@ -186,6 +193,24 @@ def _rms(v):
     v = np.asarray(v, dtype=np.float64)
     v = v[np.isfinite(v)]
     return float(np.sqrt(np.mean(v * v))) if v.size else None
+
+
+def sigma_calibration(estimate, maps: dict, mask) -> dict:
+    """:data:`CALIBRATION_KEYS` of an estimate: the share of the pixels of ``mask`` whose
+    normal and thickness errors (``maps``) lie within twice the estimate's σ (a pixel with a
+    NaN σ counts as outside); None where the estimate reports no σ."""
+    out = dict.fromkeys(CALIBRATION_KEYS)
+    if estimate.normal_sigma_deg is None or estimate.thickness_sigma_nm is None:
+        return out
+    for key, err, sig in (("normal_within_2sigma", maps.get("normal_error_deg"), estimate.normal_sigma_deg),
+                          ("thickness_within_2sigma", maps.get("thickness_error_nm"), estimate.thickness_sigma_nm)):
+        if err is None:
+            continue
+        sel = mask & np.isfinite(err)
+        if sel.any():
+            s = np.nan_to_num(np.asarray(sig, dtype=np.float64)[sel], nan=-np.inf)
+            out[key] = float(np.mean(err[sel] <= 2.0 * s))
+    return out
 
 
 def bound_capture(estimate, dataset) -> str:
@@ -481,6 +506,7 @@ def _evaluate(dataset_path, estimate_path, progress=False) -> dict:
     bound, bound_info = bound_metrics(ds, estimate, maps, mask)
     t_bound = time.perf_counter() - t_bound
     metrics = metrics_from_maps(maps, mask, film_err, bound)
+    metrics.update(sigma_calibration(estimate, maps, mask) if have_gt else dict.fromkeys(CALIBRATION_KEYS))
 
     n_mask = int(ds.ground_truth["mask"].sum()) if have_gt else int(valid.sum())
     info_out = {

@@ -23,7 +23,9 @@ spectrum's wavelengths; they must cover its fitted range.
 
 Indices
 -------
-``--film-ior`` is a number, a shipped material name (:func:`thinfilm.bsdf.material_names`) or
+``--film-ior`` is a number, a material name (a shipped table, :func:`thinfilm.bsdf.material_names`,
+or a refractiveindex.info material, ``TiO2`` or ``main/TiO2/Sarkar``:
+:func:`thinfilm.bsdf.materials.database_material`) or
 ``cauchy:A,B[,C]``, meaning ``n = A + B/λ² + C/λ⁴`` with λ in **µm** (B in µm², C in µm⁴), the
 unit of :class:`thinfilm.bsdf.Cauchy` and of ``{"cauchy": [A, B, C]}`` in ``meta.json``.
 Coefficients with λ in nm are taken only with their marker, ``cauchy-nm:A,B[,C]`` (B in nm², C
@@ -182,7 +184,7 @@ def parse_index(text, option="--film-ior", allow_cauchy=True):
     >>> parse_index("1.33")(600.0)
     1.33
     """
-    from thinfilm.bsdf.materials import as_dispersion, material_names
+    from thinfilm.bsdf.materials import as_dispersion, named_material
     from thinfilm.core.film import cauchy_index
 
     text = str(text).strip()
@@ -209,12 +211,11 @@ def parse_index(text, option="--film-ior", allow_cauchy=True):
     try:
         value = float(text)
     except ValueError:
-        names = material_names()
-        if text.lower() not in {m.lower() for m in names}:
-            forms = "a number, cauchy:A,B[,C] (λ in µm) or" if allow_cauchy else "a number or"
-            raise UserError(f"{option}: expected {forms} a material ({', '.join(names)}), "
-                            f"got {text!r}") from None
-        return as_dispersion(text)
+        try:
+            return named_material(text)
+        except ValueError as e:
+            forms = "a number, cauchy:A,B[,C] (λ in µm)" if allow_cauchy else "a number"
+            raise UserError(f"{option}: {e}".replace("expected a number, n+ki,", f"expected {forms},")) from None
     if not math.isfinite(value) or value <= 0:
         raise UserError(f"{option}: the refractive index must be a positive number, got {text}")
     if not INDEX_RANGE[0] <= value <= INDEX_RANGE[1]:
@@ -289,6 +290,16 @@ def _fitted_part(spec, lam_range, min_points):
                         f"(NaN or infinite values are refused inside the fitted range)")
     _bounded(spec, keep)
     return spec.wavelengths_nm[keep], spec.values[keep]
+
+
+def _covers(model, lam, path):
+    """A database material's range must cover the fitted wavelengths (no value is extrapolated)."""
+    for option, index in (("--film-ior", model.film_ior), ("--substrate-ior", model.substrate_ior)):
+        if hasattr(index, "check_range"):
+            try:
+                index.check_range(float(lam[0]), float(lam[-1]), f"the fitted wavelengths of {path}")
+            except ValueError as e:
+                raise UserError(f"{option}: {e} (--wavelength-range MIN MAX narrows the fit)") from None
 
 
 def _bounded(spec, keep):
@@ -419,6 +430,7 @@ def cli_main(args):
         try:
             spec = read_spectrum(path)
             lam, values = _fitted_part(spec, lam_range, MIN_POINTS)
+            _covers(model, lam, spec.path)
             extra = {what: _on_grid(a, lam, path) for what, a in aux.items()}
             if "reference" in extra:
                 level = extra["reference"] - extra.get("background", 0.0)

@@ -184,9 +184,9 @@ def cli_main(args) -> int:
     if scheduler is not None and workers is not None:
         raise UserError("--workers and --scheduler: give one of them (a scheduler's cluster has its own workers)")
     if scheduler is None and workers is None:
-        from thinfilm.cluster import default_workers
+        from thinfilm.cluster import auto_workers
 
-        workers = default_workers()
+        workers = auto_workers()
     r = run_sweep(args.sweep, args.count, 0 if args.seed is None else args.seed, args.out,
                   overrides=list(args.overrides or ()), resolution=args.resolution, resume=args.resume,
                   workers=workers, scheduler=scheduler, progress=sys.stderr.isatty())

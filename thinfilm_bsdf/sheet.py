@@ -99,6 +99,7 @@ class _ThinFilmSheetMixin:
         self.m_ext_ior = mi.Float(checked_float(props, "ext_ior", 1.0, limits.INDEX, plugin=_NAME))
         self.m_wavelength = mi.Float(checked_float(props, "wavelength", 550.0, limits.WAVELENGTH_NM,
                                                    plugin=_NAME, unit="nm"))
+        self.m_film.check_wavelengths(self.m_wavelength, _NAME)
 
         sides = mi.BSDFFlags.FrontSide | mi.BSDFFlags.BackSide
         self.m_components = [mi.BSDFFlags.DeltaReflection | sides, mi.BSDFFlags.Null | sides]
@@ -119,6 +120,7 @@ class _ThinFilmSheetMixin:
         check_parameters(_NAME, self.m_film.checks() + [("ext_ior", self.m_ext_ior, limits.INDEX),
                                                         ("wavelength", self.m_wavelength,
                                                          limits.WAVELENGTH_NM)])
+        self.m_film.check_wavelengths(self.m_wavelength, _NAME)
         self._make_opaque()
 
     # -- physics ------------------------------------------------------------

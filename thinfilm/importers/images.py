@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from thinfilm.core.errors import UserError
+from thinfilm.core.extras import require_extra
 
 __all__ = ["CameraImage", "read_image", "apply_bit_depth"]
 
@@ -96,8 +97,7 @@ def apply_bit_depth(img: CameraImage, bits: int | None, where: str = "--bit-dept
 # -- TIFF -------------------------------------------------------------------------------------
 
 def _read_tiff(p: Path, what: str) -> CameraImage:
-    import tifffile
-
+    tifffile = require_extra("tifffile", "import", what=f"{p}: reading a TIFF {what}")
     try:
         with tifffile.TiffFile(p) as tif:
             if len(tif.series) != 1 or len(tif.pages) != 1:
@@ -150,8 +150,7 @@ def _read_png(p: Path, what: str) -> CameraImage:
     if depth not in (8, 16):
         raise UserError(f"{p}: the {what} has {depth}-bit samples; expected 8 or 16 bits")
     # imagecodecs (libpng) keeps 16-bit colour samples, which Pillow reduces to 8 bits
-    import imagecodecs
-
+    imagecodecs = require_extra("imagecodecs", "import", what=f"{p}: reading a PNG {what}")
     try:
         data = imagecodecs.png_decode(raw)
     except Exception as e:

@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from thinfilm.core.errors import UserError
+from thinfilm.core.extras import require_extra
 
 from .common import (csv_records, file_record, film_fields, import_meta, input_files, parse_angles, parse_numbers, parse_wavelengths,
                      read_spectrum_csv, reference_reflectance, warn_relative_units)
@@ -99,7 +100,7 @@ def read_cube(path, what: str = "cube") -> _Cube:
     is_tiff = head in (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+")
     hdr = None if is_tiff else _envi_header(p)
     if hdr is not None:
-        import spectral.io.envi as envi
+        envi = require_extra("spectral.io.envi", "import", what=f"{hdr}: reading an ENVI {what}")
 
         try:
             img = envi.open(str(hdr.resolve()), None if p.suffix.lower() == ".hdr" else str(p.resolve()))
@@ -123,8 +124,7 @@ def read_cube(path, what: str = "cube") -> _Cube:
     else:
         if not is_tiff:
             raise UserError(f"{p}: the {what} is neither an ENVI file (no .hdr beside it) nor a TIFF file")
-        import tifffile
-
+        tifffile = require_extra("tifffile", "import", what=f"{p}: reading a TIFF {what}")
         try:
             with tifffile.TiffFile(p) as tif:
                 series = tif.series[0]
