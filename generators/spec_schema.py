@@ -151,7 +151,8 @@ CHECKS = {
     "layers": "a list of 1 to " f"{MAX_STACK_LAYERS}" " layer tables, from the exterior down",
     "bitmap": ("an .exr (channel thickness, Y, R or its only one) or .npy file of thicknesses in nm, "
                "relative to the spec's folder"),
-    "ior": "a refractive index ({index[0]:g} to {index[1]:g}), 'n+ki' text or a material name",
+    "ior": ("a refractive index ({index[0]:g} to {index[1]:g}), 'n+ki' text, a shipped material (MgF2, PET, BK7, "
+            "SiO2, H2O, Au) or a refractiveindex.info material (e.g. TiO2, main/TiO2/Sarkar)"),
     "index": "a refractive index, {index[0]:g} to {index[1]:g}",
     "extinction": "an extinction coefficient k, {extinction[0]:g} to {extinction[1]:g}",
     "angles": "whole-degree polarizer angles, 0 to 359, at least 3 that differ modulo 180",
