@@ -123,6 +123,13 @@ def _add_cluster_arguments(p) -> None:
                    help="use an existing Dask cluster: tcp://HOST:PORT or a scheduler file")
 
 
+def _add_refine_arguments(p):
+    p.add_argument("--refine", action="store_true",
+                   help="refine the estimate on all the captures before writing it ('thinfilm refine')")
+    p.add_argument("--prior", choices=("default", "none"), default="default",
+                   help="with --refine: default (a height field and smooth thickness) or none (each pixel alone)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     from .generators.spec_schema import LIMITS
 
@@ -180,6 +187,7 @@ def build_parser() -> argparse.ArgumentParser:
     rgb.add_argument("--mask", default=None, help="optional mask image (non-zero on the object)")
     rgb.add_argument("--option", action="append", default=None, metavar="NAME=VALUE",
                     help="set one of the method's options (repeatable; 'thinfilm methods' lists them)")
+    _add_refine_arguments(rgb)
     rgb.set_defaults(target="thinfilm.reconstruct:cli_main")
     sp = rsub.add_parser("spectral", help="from s-polarized hyperspectral images (film index estimated)")
     sp.add_argument("dataset")
@@ -193,7 +201,18 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--mask", default=None, help="optional mask image (non-zero on the object)")
     sp.add_argument("--option", action="append", default=None, metavar="NAME=VALUE",
                     help="set one of the method's options (repeatable; 'thinfilm methods' lists them)")
+    _add_refine_arguments(sp)
     sp.set_defaults(target="thinfilm.reconstruct:cli_main")
+
+    rf = sub.add_parser("refine", help="fit an estimate again to all of a dataset's captures (shape, thickness, "
+                                       "film index), with its uncertainty")
+    rf.add_argument("dataset", help="the dataset folder the estimate was made from")
+    rf.add_argument("estimate", help="an estimate folder (any method's, or a third party's)")
+    rf.add_argument("--out", required=True, help="the refined estimate folder to write")
+    rf.add_argument("--prior", choices=("default", "none"), default="default",
+                    help="default: a height field and smooth thickness; none: every pixel on its own")
+    rf.add_argument("--iterations", type=_positive_int, default=8, metavar="N", help="Gauss-Newton iterations")
+    rf.set_defaults(target="thinfilm.refine:cli_main")
 
     me = sub.add_parser("methods", help="list the reconstruction methods (built-in and installed)")
     me.add_argument("--json", action="store_true", help="one JSON object per method, for machines")
