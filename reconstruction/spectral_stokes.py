@@ -434,9 +434,18 @@ def reconstruct_stokes(stokes, wavelengths_nm, substrate_ior, mask, smoothness=2
             "azimuth_sign_by_prior": az_info["sign_by_prior"],
             "unexplained_pixels": int(np.sum(chi2 >= max_chi2)),
             "smoothness": smoothness, "thickness_range_nm": [limits.lo, limits.upper(n2)]}
+    unexplained = int(np.sum(chi2 >= max_chi2))
     if not valid.any():
         # said by the command line instead of an estimate with no valid pixel
         info["no_result_reason"] = (f"one film of a constant index ({n2:.3f}) explains none of the {n} pixels' "
                                     f"spectra: reduced chi2 >= {max_chi2:g} everywhere")
+    elif unexplained > n // 2:
+        import warnings
+
+        from thinfilm.core.errors import ThinfilmWarning
+
+        warnings.warn(f"stokes_spectral: one film of a constant index ({n2:.3f}) explains only {n - unexplained} "
+                      f"of the {n} pixels' spectra (reduced chi2 >= {max_chi2:g} elsewhere, those pixels are "
+                      f"invalid): the film may not be of one constant index", ThinfilmWarning, stacklevel=2)
     return Estimate(normals=out_n, thickness_nm=thickness, valid=valid, film_ior=float(n2),
                     substrate_ior=n3, height=height, info=info, normal_sigma_deg=sig_n, thickness_sigma_nm=sig_d)

@@ -12,13 +12,13 @@ from thinfilm.reconstruction import spectral_fit, spectral_stokes
 WL = np.arange(400.0, 721.0, 8.0)
 
 
-def _hemisphere(tmp_path_factory, name, film_ior, substrate_ior):
+def _hemisphere(tmp_path_factory, name, film_ior, substrate_ior, resolution=16):
     from thinfilm.generators import generate as gen
     from thinfilm.generators.spec import load_spec
 
     out = tmp_path_factory.mktemp("small") / name
     spec = load_spec("hemisphere", overrides=[f"film.ior={film_ior}", f"substrate.ior={substrate_ior}"],
-                     resolution=16)
+                     resolution=resolution)
     gen.generate_dataset(spec, out, progress=False)
     return out
 
@@ -57,6 +57,17 @@ def test_a_film_the_model_explains_nowhere_is_reported_not_estimated(dispersive,
     assert len(err.splitlines()) == 1 and "found no pixel it could reconstruct" in err
     assert "explains none of the" in err and "nothing was written" in err
     assert not out.exists()
+
+
+def test_a_film_the_model_explains_at_few_pixels_is_warned_of(tmp_path_factory, render_variant_module, tmp_path,
+                                                              capsys):
+    # at 32 px a few pixels fit: the estimate is written, with one warning line
+    data = _hemisphere(tmp_path_factory, "tio2_32", "TiO2", 1.6, resolution=32)
+    out = tmp_path / "est"
+    assert main(["reconstruct", "spectral", str(data), "--out", str(out)]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("thinfilm: warning: stokes_spectral: one film of a constant index")
+    assert "explains only" in err[0]
 
 
 def test_stages_on_zero_pixels_return_empty_fits():
