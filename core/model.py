@@ -642,7 +642,8 @@ class ObservationModel:
         Parameters
         ----------
         observations : :class:`Observations`
-        x : (n, P) unknowns, columns as ``parametrization`` names them.
+        x : (n, P) unknowns, columns as ``parametrization`` names them (n = 0: empty results,
+            no kernel).
         parametrization : str or :class:`Parametrization`
         fixed : dict name → (n,) per-lane constants (``c2``, ``s2``, ``light``,
             ``thickness_nm.<i>``, ``index_offset.<i>``).
