@@ -82,11 +82,34 @@ def _positive_float(text):
 
 
 def _index(text):
-    """A refractive index on the command line: 0.01 to 100, as in scene specs."""
-    value = _positive_float(text)
-    if not 0.01 <= value <= 100.0:
-        raise argparse.ArgumentTypeError(f"expected a refractive index from 0.01 to 100, got {text!r}")
-    return value
+    """A refractive index on the command line, as in scene specs: a number from 0.01 to 100
+    (returned as a float), or ``n+ki`` text or a material name (a shipped table or a
+    refractiveindex.info page), checked here and returned as the text."""
+    import math
+
+    from .generators.spec_schema import LIMITS
+
+    lo, hi = LIMITS["index"]
+    try:
+        value = float(text)
+    except ValueError:
+        value = None
+    if value is not None:
+        if not (math.isfinite(value) and lo <= value <= hi):
+            raise argparse.ArgumentTypeError(f"expected a refractive index from {lo:g} to {hi:g}, got {text!r}")
+        return value
+    from .bsdf.materials import parse_index
+
+    try:
+        parsed = parse_index(text)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(" ".join(str(e).split())) from None
+    if hasattr(parsed, "n"):  # n+ki
+        k_lo, k_hi = LIMITS["extinction"]
+        if not (lo <= parsed.n <= hi and k_lo <= parsed.k <= k_hi):
+            raise argparse.ArgumentTypeError(f"expected an index n from {lo:g} to {hi:g} and k from {k_lo:g} "
+                                             f"to {k_hi:g}, got {text!r}")
+    return text
 
 
 def _nonnegative_float(text):
