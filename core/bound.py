@@ -60,7 +60,7 @@ from .model import ObservationModel, state_from_normals, view_frames
 from .noise import capture_variance, exposure_gains
 
 __all__ = ["CAPTURES", "ZENITH_RANGE_DEG", "double_angle_from_normals", "normal_jacobian", "image_plane_jacobian",
-           "angle_sigma_deg", "pixel_bound"]
+           "angle_sigma_deg", "estimate_capture", "pixel_bound"]
 
 #: the captures a bound is computed for
 CAPTURES = ("polarized_rgb", "stokes", "spectral_s")
@@ -112,6 +112,21 @@ def angle_sigma_deg(jacobian, cov) -> np.ndarray:
     var = np.einsum("nip,npq,niq->n", jacobian, cov, jacobian)
     with np.errstate(invalid="ignore"):
         return np.degrees(np.sqrt(np.maximum(var, 0.0) + np.where(np.isnan(var), np.nan, 0.0)))
+
+
+def estimate_capture(estimate, dataset) -> str:
+    """The capture an estimate was made from: ``stokes``, ``spectral_s`` or ``polarized_rgb``
+    (its ``capture`` entry, else its method's kind, else what the dataset holds)."""
+    from . import registry
+
+    cap = estimate.info.get("capture")
+    if cap in ("stokes", "s", "spectral_s", "polarized_rgb"):
+        return {"s": "spectral_s"}.get(cap, cap)
+    method = str(estimate.info.get("method") or "").removesuffix("+refine")
+    kinds = {m.kind for m in registry.methods() if method in (m.name, *m.aliases)}
+    if kinds == {"rgb"} or (not kinds and dataset.polarized_rgb and dataset.spectral_s is None):
+        return "polarized_rgb"
+    return "spectral_s" if kinds == {"spectral"} or not dataset.stokes else "stokes"
 
 
 def _gains(images, noise):

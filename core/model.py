@@ -589,6 +589,15 @@ class ObservationModel:
             dr.set_grad(leaf, 0.0)
         return [dr.detach(o) for o in outs], [[dr.detach(g) for g in row] for row in tangents]
 
+    @staticmethod
+    def _lane_shape(x, wrt):
+        """``(n, Q)`` of lanes ``x`` (n, P): their number and that of the columns differentiated
+        (``wrt``; None: all)."""
+        shape = np.shape(x)
+        if len(shape) != 2:
+            raise ValueError(f"x must be (n, P), got shape {shape}")
+        return shape[0], shape[1] if wrt is None else len(list(wrt))
+
     def _lanes(self, x, parametrization, fixed, rows, wrt, repeat=1):
         """Upload the lanes' inputs once and return ``at(k, lane_of)``: values and tangents of
         (S0, S1, S2) at sub-wavelength ``k`` for the lanes, plus the lanes' observation rows.
@@ -633,7 +642,8 @@ class ObservationModel:
         Parameters
         ----------
         observations : :class:`Observations`
-        x : (n, P) unknowns, columns as ``parametrization`` names them.
+        x : (n, P) unknowns, columns as ``parametrization`` names them (n = 0: empty results,
+            no kernel).
         parametrization : str or :class:`Parametrization`
         fixed : dict name → (n,) per-lane constants (``c2``, ``s2``, ``light``,
             ``thickness_nm.<i>``, ``index_offset.<i>``).
@@ -647,9 +657,14 @@ class ObservationModel:
         -------
         H : (n, Q, Q) ``JᵀJ``; g : (n, Q) ``Jᵀr``; cost : (n,) ``Σ r²``.
         """
+        n, Q = self._lane_shape(x, wrt if derivatives else ())
+        if n == 0:
+            # no lanes: empty sums, no kernel (Dr.Jit cannot mix arrays of width 0 and 1)
+            if not derivatives:
+                return None, None, np.zeros(0)
+            return np.zeros((0, Q, Q)), np.zeros((0, Q)), np.zeros(0)
         t = self.types
         dr, Float, UInt32 = t.dr, t.Float, t.UInt32
-        n = np.shape(x)[0]
         at, row, Q, _ = self._lanes(x, parametrization, fixed, rows, (wrt if derivatives else ()))
         dev = observations.device(t)
         if observations.kind == "polarized_rgb":
@@ -698,9 +713,18 @@ class ObservationModel:
         -------
         values : (n, M); with ``derivatives`` also ``jacobian`` (n, M, Q).
         """
+        if kind not in ("stokes", "spectral_s", "sp", "polarized_rgb"):
+            raise ValueError(f"kind must be stokes, spectral_s, sp or polarized_rgb, got {kind!r}")
+        n, Q = self._lane_shape(x, wrt if derivatives else ())
+        if n == 0:
+            # no lanes: empty predictions of the kind's width, no kernel
+            if kind == "polarized_rgb":
+                M = 3 * np.size(angles_deg if angles_deg is not None else self.rig.polarizer_angles_deg)
+            else:
+                M = {"stokes": 3, "spectral_s": 1, "sp": 2}[kind] * self.bands
+            return np.zeros((0, M)) if not derivatives else (np.zeros((0, M)), np.zeros((0, M, Q)))
         t = self.types
         dr, Float, UInt32 = t.dr, t.Float, t.UInt32
-        n = np.shape(x)[0]
         if kind == "polarized_rgb":
             angles = np.radians(np.asarray(angles_deg if angles_deg is not None else self.rig.polarizer_angles_deg,
                                            dtype=np.float64))
@@ -719,8 +743,6 @@ class ObservationModel:
             jac = np.stack([np.stack([np.asarray(o[q + 1], dtype=np.float64) for o in outs], axis=1)
                             for q in range(Q)], axis=2)
             return vals, jac
-        if kind not in ("stokes", "spectral_s", "sp"):
-            raise ValueError(f"kind must be stokes, spectral_s, sp or polarized_rgb, got {kind!r}")
         B = self.bands
         at, row, Q, lane = self._lanes(x, parametrization, fixed, None, (wrt if derivatives else ()), repeat=B)
         b = lane - (lane // B) * B
@@ -1059,7 +1081,8 @@ class Spectrometer:
 
     def _model(self, index_offset) -> ObservationModel:
         # an offset taking the film below the exterior's index needs complex normal components
-        lossless = index_offset is None or self._n_min + float(np.min(index_offset)) >= self.film.ext_ior
+        lossless = (index_offset is None or np.size(index_offset) == 0
+                    or self._n_min + float(np.min(index_offset)) >= self.film.ext_ior)
         if lossless not in self._models:
             self._models[lossless] = ObservationModel(*self._args, lossless=None if lossless else False)
         return self._models[lossless]

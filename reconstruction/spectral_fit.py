@@ -263,6 +263,10 @@ def joint_film_ior(S, th, d, n2, n3, wl, iterations=15, bounds=None):
     40 nm in d. Returns ``(n2, θ, d, sse)``."""
     th, d = np.asarray(th, dtype=np.float64), np.asarray(d, dtype=np.float64)
     N = th.size
+    if N == 0:
+        # the shared index would rest on nothing (its normal equations are zero)
+        raise UserError("spectral: no pixel's spectrum fits an order of interference within the thickness "
+                        "range, so the film index cannot be estimated")
     n2_lo, n2_hi = (1.0, n3 - 1e-3) if bounds is None else bounds
     with_p = S.shape[1] == 2 * np.size(wl)
 

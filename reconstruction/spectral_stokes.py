@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from thinfilm.core.errors import UserError
 from thinfilm.core.model import Observations
 
 from .lm import levenberg_marquardt
@@ -291,6 +292,9 @@ def reconstruct_stokes(stokes, wavelengths_nm, substrate_ior, mask, smoothness=2
         sp_g = sp_of(gi)
         pk, th_ext = _sf.extrema_angles(sp_g[:, :b], wl, n3, above)
         ok = np.isfinite(th_ext)
+    if not ok.any():
+        raise UserError("stokes_spectral: no pixel shows the interference extremum the index "
+                        f"{n2:.3f} implies, so no pixel's angle can be started")
     seeds = gi[ok]
     d_s = _sf.initial_thickness(sp_g[ok], th_ext[ok], pk.wavelength_nm[ok], n2, n3, wl, limits=limits)
     t["init"] = time.perf_counter() - t0
@@ -430,5 +434,18 @@ def reconstruct_stokes(stokes, wavelengths_nm, substrate_ior, mask, smoothness=2
             "azimuth_sign_by_prior": az_info["sign_by_prior"],
             "unexplained_pixels": int(np.sum(chi2 >= max_chi2)),
             "smoothness": smoothness, "thickness_range_nm": [limits.lo, limits.upper(n2)]}
+    unexplained = int(np.sum(chi2 >= max_chi2))
+    if not valid.any():
+        # said by the command line instead of an estimate with no valid pixel
+        info["no_result_reason"] = (f"one film of a constant index ({n2:.3f}) explains none of the {n} pixels' "
+                                    f"spectra: reduced chi2 >= {max_chi2:g} everywhere")
+    elif unexplained > n // 2:
+        import warnings
+
+        from thinfilm.core.errors import ThinfilmWarning
+
+        warnings.warn(f"stokes_spectral: one film of a constant index ({n2:.3f}) explains only {n - unexplained} "
+                      f"of the {n} pixels' spectra (reduced chi2 >= {max_chi2:g} elsewhere, those pixels are "
+                      f"invalid): the film may not be of one constant index", ThinfilmWarning, stacklevel=2)
     return Estimate(normals=out_n, thickness_nm=thickness, valid=valid, film_ior=float(n2),
                     substrate_ior=n3, height=height, info=info, normal_sigma_deg=sig_n, thickness_sigma_nm=sig_d)

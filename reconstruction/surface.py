@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["integrate_normals", "height_to_normals", "normals_to_gradients"]
+__all__ = ["integrate_normals", "height_to_normals", "normals_to_gradients", "second_differences"]
 
 
 def normals_to_gradients(normals, max_slope_deg: float = 85.0):
@@ -114,7 +114,7 @@ def integrate_normals(normals, mask, weights=None, smoothness: float = 0.0,
     rhs_vec = A.T @ (wt * b)
 
     if smoothness > 0:
-        S = _second_differences(mask, idx, n)
+        S = second_differences(mask, idx, n)
         N = N + smoothness * (S.T @ S)
     # Tiny Tikhonov term: fixes the free constant of every connected part (zero-mean height).
     N = N + 1e-9 * sp.identity(n)
@@ -170,7 +170,9 @@ def _part_means(z, mask):
     return np.where(labels > 0, means[np.maximum(labels, 1) - 1], 0.0)
 
 
-def _second_differences(mask, idx, n):
+def second_differences(mask, idx, n):
+    """The second differences along x and y of the pixels of ``mask`` numbered ``idx`` (-1
+    outside), as a sparse (rows × n) matrix: one row per three consecutive mask pixels."""
     import scipy.sparse as sp
 
     rows, cols, vals = [], [], []

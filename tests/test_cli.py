@@ -102,3 +102,57 @@ def test_usage_errors_are_one_line_exit_2(capsys, argv):
     assert e.value.code == 2
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and "error:" in err
+
+
+# --- refractive indices of the reconstruct commands ----------------------------------------------
+
+@pytest.fixture(scope="module")
+def small_hemisphere(tmp_path_factory, render_variant_module):
+    from thinfilm.generators import generate as gen
+    from thinfilm.generators.spec import load_spec
+
+    out = tmp_path_factory.mktemp("cli_index") / "hemi"
+    gen.generate_dataset(load_spec("hemisphere", resolution=16), out, progress=False)
+    return out
+
+
+@pytest.mark.parametrize("kind,argv,film,substrate", [
+    # a shipped table and 'n+ki' text (the dataset's film 1.37 on 1.6)
+    ("rgb", ["--film-ior", "MgF2", "--substrate-ior", "1.6+0i"], "MgF2", 1.6),
+    ("rgb", ["--film-ior", "1.37+0i", "--substrate-ior", "1.6"], 1.37, 1.6),
+    # a refractiveindex.info book (its default page)
+    ("spectral", ["--substrate-ior", "Al2O3"], None, "Al2O3"),
+], ids=["rgb_table_and_complex", "rgb_complex_film", "spectral_database"])
+def test_reconstruct_takes_material_names_and_complex_indices(small_hemisphere, tmp_path, capsys, kind, argv,
+                                                             film, substrate):
+    from thinfilm.core.film import Film
+    from thinfilm.core.io import read_estimate
+
+    out = tmp_path / "est"
+    assert main(["reconstruct", kind, str(small_hemisphere), "--out", str(out)] + argv) == 0
+    assert capsys.readouterr().out.startswith(f"wrote {out}")
+    est = read_estimate(out)
+    # the indices the estimate records (a material by its name) are those given
+    expected = Film.single(1.0 if film is None else film, None, substrate)
+    got = Film.single(est.film_ior, None, est.substrate_ior)
+    assert got.effective_substrate_index() == pytest.approx(expected.effective_substrate_index(), abs=1e-9)
+    if film is not None:
+        assert got.effective_index() == pytest.approx(expected.effective_index(), abs=1e-9)
+
+
+@pytest.mark.parametrize("argv,message", [
+    (["rgb", "--film-ior", "MgF3"], "argument --film-ior: unknown material 'MgF3' (closest: MgF2"),
+    (["rgb", "--substrate-ior", "BK8"], "argument --substrate-ior: unknown material 'BK8' (closest:"),
+    (["spectral", "--substrate-ior", "TiO2x"], "argument --substrate-ior: unknown material 'TiO2x' (closest: TiO2"),
+    (["spectral", "--substrate-ior", "1.6+200i"], "argument --substrate-ior: expected an index n from 0.01 to 100"),
+    (["rgb", "--film-ior", "200"], "argument --film-ior: expected a refractive index from 0.01 to 100"),
+    (["rgb", "--film-ior", "nan"], "argument --film-ior: expected a refractive index from 0.01 to 100"),
+], ids=["film_table", "substrate_table", "database_book", "complex_range", "number_range", "nan"])
+def test_reconstruct_refuses_an_unknown_index_in_one_line(tmp_path, capsys, argv, message):
+    kind, rest = argv[0], argv[1:]
+    with pytest.raises(SystemExit) as e:
+        main(["reconstruct", kind, str(tmp_path / "data"), "--out", str(tmp_path / "est")] + rest)
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and err.startswith(f"thinfilm reconstruct {kind}: error: {message}")
+    assert not (tmp_path / "est").exists()

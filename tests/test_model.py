@@ -215,3 +215,55 @@ def test_the_spectrometer_reading_and_its_derivatives_against_tmm(angle, n_film,
     dn = (ref(d, n_film + delta + h_n) - ref(d, n_film + delta - h_n)) / (2 * h_n)
     assert np.allclose(J[0, :, 0], dd, rtol=1e-5, atol=1e-9)
     assert np.allclose(J[0, :, 1], dn, rtol=1e-5, atol=1e-7)
+
+
+@pytest.mark.parametrize("kind", ["stokes", "spectral_s", "sp", "polarized_rgb"])
+def test_zero_lanes_give_empty_results_of_the_right_shape(kind):
+    # a stage of a method with no pixel left to fit calls the model with zero rows
+    wl = np.arange(400.0, 721.0, 8.0)
+    b = wl.size
+    model = ObservationModel(Rig(wavelengths_nm=wl, band_fwhm_nm=4.0), Film.single(1.37, None, 1.6))
+    x = np.zeros((0, 3))
+    fixed = {"index_offset.0": np.zeros(0)}
+    width = {"stokes": 3 * b, "spectral_s": b, "sp": 2 * b, "polarized_rgb": 3 * 4}[kind]
+    values = model.evaluate(kind, x, fixed=fixed)
+    assert values.shape == (0, width)
+    values, jac = model.evaluate(kind, x, fixed=fixed, derivatives=True, wrt=[2])
+    assert values.shape == (0, width) and jac.shape == (0, width, 1)
+    if kind == "polarized_rgb":
+        assert model.evaluate(kind, x, angles_deg=[0.0, 90.0]).shape == (0, 6)
+    data = {"stokes": (np.zeros((5, b)),) * 3, "spectral_s": np.zeros((5, b)), "sp": np.zeros((5, 2 * b)),
+            "polarized_rgb": np.zeros((5, 4, 3))}[kind]
+    obs = Observations(kind, data, angles_deg=[0, 45, 90, 135] if kind == "polarized_rgb" else None)
+    H, g, cost = model.normal_equations(obs, x, fixed=fixed, rows=np.zeros(0, dtype=np.int64))
+    assert H.shape == (0, 3, 3) and g.shape == (0, 3) and cost.shape == (0,)
+    H, g, cost = model.normal_equations(obs, x, wrt=[0, 2])
+    assert H.shape == (0, 2, 2) and g.shape == (0, 2)
+    assert model.normal_equations(obs, x, derivatives=False)[2].shape == (0,)
+    # the same model then evaluates lanes as before
+    full = model.evaluate(kind, np.array([[0.1, -0.2, 450.0]]))
+    assert full.shape == (1, width) and np.all(np.isfinite(full)) and np.any(full > 0)
+    with pytest.raises(ValueError, match="x must be"):
+        model.evaluate(kind, np.zeros(0))
+
+
+def test_zero_pixels_through_the_stokes_cube_the_spectrometer_and_the_solver():
+    from thinfilm.core.model import Spectrometer
+    from thinfilm.reconstruction.lm import levenberg_marquardt
+
+    wl = np.arange(400.0, 721.0, 8.0)
+    model = ObservationModel(Rig(wavelengths_nm=wl, band_fwhm_nm=4.0), Film.single(1.37, None, 1.6))
+    s = model.stokes(np.zeros((0, 3)), np.zeros(0))
+    assert all(s[k].shape == (0, wl.size) for k in ("S0", "S1", "S2"))
+    spot = Spectrometer(Film.single(1.37, None, 1.6), wl)
+    assert spot.reflectance([]).shape == (0, wl.size)
+    R, dR = spot.reflectance([], index_offset=[], derivatives=True)
+    assert R.shape == (0, wl.size) and dR.shape == (0, wl.size, 2)
+    obs = Observations("spectral_s", np.zeros((0, wl.size)))
+
+    def normal_equations(x, idx):
+        H, g, cost = model.normal_equations(obs, x, rows=idx)
+        return H, g, cost, None
+
+    fit = levenberg_marquardt(np.zeros((0, 3)), normal_equations, iterations=5)
+    assert fit.x.shape == (0, 3) and fit.H.shape == (0, 3, 3) and fit.cost.shape == (0,) and fit.iterations == 0

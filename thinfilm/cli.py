@@ -82,11 +82,34 @@ def _positive_float(text):
 
 
 def _index(text):
-    """A refractive index on the command line: 0.01 to 100, as in scene specs."""
-    value = _positive_float(text)
-    if not 0.01 <= value <= 100.0:
-        raise argparse.ArgumentTypeError(f"expected a refractive index from 0.01 to 100, got {text!r}")
-    return value
+    """A refractive index on the command line, as in scene specs: a number from 0.01 to 100
+    (returned as a float), or ``n+ki`` text or a material name (a shipped table or a
+    refractiveindex.info page), checked here and returned as the text."""
+    import math
+
+    from .generators.spec_schema import LIMITS
+
+    lo, hi = LIMITS["index"]
+    try:
+        value = float(text)
+    except ValueError:
+        value = None
+    if value is not None:
+        if not (math.isfinite(value) and lo <= value <= hi):
+            raise argparse.ArgumentTypeError(f"expected a refractive index from {lo:g} to {hi:g}, got {text!r}")
+        return value
+    from .bsdf.materials import parse_index
+
+    try:
+        parsed = parse_index(text)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(" ".join(str(e).split())) from None
+    if hasattr(parsed, "n"):  # n+ki
+        k_lo, k_hi = LIMITS["extinction"]
+        if not (lo <= parsed.n <= hi and k_lo <= parsed.k <= k_hi):
+            raise argparse.ArgumentTypeError(f"expected an index n from {lo:g} to {hi:g} and k from {k_lo:g} "
+                                             f"to {k_hi:g}, got {text!r}")
+    return text
 
 
 def _nonnegative_float(text):
@@ -128,6 +151,13 @@ def _examples(*lines: str) -> dict:
     lines (kept as written)."""
     return {"epilog": "examples:\n" + "\n".join("  " + line for line in lines),
             "formatter_class": argparse.RawDescriptionHelpFormatter}
+
+
+def _add_refine_arguments(p):
+    p.add_argument("--refine", action="store_true",
+                   help="refine the estimate on all the captures before writing it ('thinfilm refine')")
+    p.add_argument("--prior", choices=("default", "none"), default="default",
+                   help="with --refine: default (a height field and smooth thickness) or none (each pixel alone)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -203,6 +233,7 @@ def build_parser() -> argparse.ArgumentParser:
     rgb.add_argument("--mask", default=None, help="optional mask image (non-zero on the object)")
     rgb.add_argument("--option", action="append", default=None, metavar="NAME=VALUE",
                     help="set one of the method's options (repeatable; 'thinfilm methods' lists them)")
+    _add_refine_arguments(rgb)
     rgb.set_defaults(target="thinfilm.reconstruct:cli_main")
     sp = rsub.add_parser("spectral", help="from s-polarized hyperspectral images (film index estimated)",
                          **_examples("thinfilm reconstruct spectral data/cyl --out est/cyl-spec",
@@ -219,7 +250,20 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--mask", default=None, help="optional mask image (non-zero on the object)")
     sp.add_argument("--option", action="append", default=None, metavar="NAME=VALUE",
                     help="set one of the method's options (repeatable; 'thinfilm methods' lists them)")
+    _add_refine_arguments(sp)
     sp.set_defaults(target="thinfilm.reconstruct:cli_main")
+
+    rf = sub.add_parser("refine", help="fit an estimate again to all of a dataset's captures (shape, thickness, "
+                                       "film index), with its uncertainty",
+                        **_examples("thinfilm refine data/cyl est/cyl-rgb --out est/cyl-refined",
+                                    "thinfilm refine data/cyl est/cyl-rgb --out est/cyl-pixels --prior none"))
+    rf.add_argument("dataset", help="the dataset folder the estimate was made from")
+    rf.add_argument("estimate", help="an estimate folder (any method's, or a third party's)")
+    rf.add_argument("--out", required=True, help="the refined estimate folder to write")
+    rf.add_argument("--prior", choices=("default", "none"), default="default",
+                    help="default: a height field and smooth thickness; none: every pixel on its own")
+    rf.add_argument("--iterations", type=_positive_int, default=8, metavar="N", help="Gauss-Newton iterations")
+    rf.set_defaults(target="thinfilm.refine:cli_main")
 
     me = sub.add_parser("methods", help="list the reconstruction methods (built-in and installed)",
                         **_examples("thinfilm methods", "thinfilm methods --json"))

@@ -214,18 +214,11 @@ def sigma_calibration(estimate, maps: dict, mask) -> dict:
 
 
 def bound_capture(estimate, dataset) -> str:
-    """The capture an estimate was made from, for its bound: ``stokes``, ``spectral_s`` or
-    ``polarized_rgb`` (its ``capture`` entry, else its method's kind, else what the dataset
-    holds)."""
-    from thinfilm.core import registry
+    """The capture an estimate was made from, for its bound
+    (:func:`thinfilm.core.bound.estimate_capture`)."""
+    from thinfilm.core.bound import estimate_capture
 
-    cap = estimate.info.get("capture")
-    if cap in ("stokes", "s", "spectral_s"):
-        return "spectral_s" if cap in ("s", "spectral_s") else "stokes"
-    kinds = {m.kind for m in registry.methods() if estimate.info.get("method") in (m.name, *m.aliases)}
-    if kinds == {"rgb"} or (not kinds and dataset.polarized_rgb and dataset.spectral_s is None):
-        return "polarized_rgb"
-    return "spectral_s" if kinds == {"spectral"} or dataset.stokes is None else "stokes"
+    return estimate_capture(estimate, dataset)
 
 
 def bound_metrics(dataset, estimate, maps: dict, mask) -> tuple[dict, dict]:

@@ -117,6 +117,13 @@ def cli_main(args) -> int:
                                   getattr(args, "film_ior", None), getattr(args, "substrate_ior", None),
                                   getattr(args, "thickness_range", None), getattr(args, "mask", None),
                                   progress=sys.stderr.isatty(), options=getattr(args, "option", None) or [])
+        if getattr(args, "refine", False):
+            from thinfilm.refine import refine
+
+            t = time.perf_counter()
+            timings = est.info["timings_s"]
+            est = refine(args.dataset, est, prior=args.prior, progress=sys.stderr.isatty())
+            est.info["timings_s"] = {**timings, "refine": time.perf_counter() - t}
         t = time.perf_counter()
         write_estimate(tmp, est)
         # estimate.json again, last, so that it holds the time of the writing too
