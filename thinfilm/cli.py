@@ -222,9 +222,9 @@ def build_parser() -> argparse.ArgumentParser:
     rgb.add_argument("dataset", help="a dataset folder (generated or imported)")
     rgb.add_argument("--out", required=True, help="the estimate folder to write")
     rgb.add_argument("--film-ior", type=_index, default=None, metavar="N2",
-                     help="film index (default: the dataset's meta.json; the effective index at 550 nm)")
+                     help="film index: a number, n+ki or a material name (default: the dataset's meta.json)")
     rgb.add_argument("--substrate-ior", type=_index, default=None, metavar="N3",
-                     help="substrate index (default: the dataset's meta.json)")
+                     help="substrate index: a number, n+ki or a material name (default: the dataset's meta.json)")
     rgb.add_argument("--thickness-range", type=_nonnegative_float, nargs=2, metavar=("MIN", "MAX"), default=None,
                      help="film thicknesses to consider, nm (default: 100 to 1000; colour alone cannot order "
                           "thicker films)")
@@ -241,7 +241,7 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("dataset", help="a dataset folder (generated or imported)")
     sp.add_argument("--out", required=True, help="the estimate folder to write")
     sp.add_argument("--substrate-ior", type=_index, default=None, metavar="N3",
-                    help="substrate index (default: the dataset's meta.json)")
+                    help="substrate index: a number, n+ki or a material name (default: the dataset's meta.json)")
     sp.add_argument("--thickness-range", type=_nonnegative_float, nargs=2, metavar=("MIN", "MAX"), default=None,
                     help="film thicknesses to consider, nm (default: 20 to 5000, less where the bands cannot "
                          "resolve the fringes)")
