@@ -264,6 +264,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="no PNG figures per task (faster for large suites; the report has the tables only)")
     _add_cluster_arguments(b)
     b.add_argument("--out", required=True)
+    b.add_argument("--refine", action="store_true",
+                   help="also each kind's default method refined on the captures (rows NAME+refine)")
     b.set_defaults(target="thinfilm.benchmark:cli_main")
 
     fs = sub.add_parser("fit-spectrum", help="film thickness (and index) from measured reflection spectra")
