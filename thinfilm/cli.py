@@ -288,8 +288,15 @@ def _add_import_parsers(sub) -> None:
     pol.add_argument("--illuminant", default=None, metavar="NAME|CSV", help="illuminant for the forward models")
     pol.add_argument("--wavelengths", default=None, metavar="START:STOP:STEP|LIST|FILE",
                      help="bands of the camera model (default 400:720:4)")
+    pol.add_argument("--demosaic", default="residual", choices=("residual", "bilinear"),
+                     help="dofp-rgb: residual (default; polarization- and colour-aware residual interpolation, "
+                          "object and background each from its own samples) or bilinear per plane")
+    pol.add_argument("--mask", default=None, metavar="IMAGE",
+                     help="dofp-rgb: the object's pixels (nonzero), same shape as the mosaic (default: found on "
+                          "the mosaic when a lit object is seen before a dark background)")
     pol.add_argument("--keep-edges", action="store_true",
-                     help="dofp-rgb: keep pixels whose interpolation crosses the object's silhouette valid")
+                     help="dofp-rgb with --demosaic bilinear: keep pixels whose interpolation crosses the "
+                          "object's silhouette valid")
     common(pol)
     pol.set_defaults(target="thinfilm.importers.polarization:cli_main")
 

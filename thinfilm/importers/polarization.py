@@ -9,8 +9,12 @@ Two layouts (``--layout``):
     The raw image of a colour division-of-focal-plane sensor: each pixel behind one colour
     filter and one polarizer, in the pattern of ``--pattern`` (default: Sony IMX250MYR, see
     :mod:`thinfilm.core.mosaic` for the diagram and the notation). Several raw frames of the
-    same scene are averaged. Demosaicing: :mod:`thinfilm.importers.demosaic` (bilinear per
-    plane, float64, exact at the sampled pixels).
+    same scene are averaged. Demosaicing (``--demosaic``, :mod:`thinfilm.importers.demosaic`):
+    ``residual`` (default), polarization- and colour-aware residual interpolation that
+    interpolates the object and the background each from its own samples (the object's
+    pixels: ``--mask IMAGE``, nonzero on the object, or found on the mosaic when it shows a
+    lit object before a dark background), or ``bilinear`` per plane; both float64 and exact
+    at the sampled pixels.
 
 Calibration, in this order, on the raw values of every image (and of the reference images):
 
@@ -35,8 +39,8 @@ Calibration, in this order, on the raw values of every image (and of the referen
 
 Values must be linear in the light (raw data, or raw-developed without gamma or tone curve).
 The dataset holds ``polarized_rgb.exr`` (float32), ``valid.exr`` (pixels free of saturation and,
-with ``dofp-rgb``, off the object's silhouette, see :func:`thinfilm.importers.demosaic.edge_pixels`;
-the reconstructions use only these), ``meta.json`` (``source = "imported"``, the inputs with
+with ``dofp-rgb --demosaic bilinear``, off the object's silhouette, see
+:func:`thinfilm.importers.demosaic.edge_pixels`; the reconstructions use only these), ``meta.json`` (``source = "imported"``, the inputs with
 their SHA-256, the calibration, ``camera`` and ``illuminant`` when given, ``wavelengths_nm``
 for the forward models) and ``preview.png``; no ground truth.
 """
@@ -174,6 +178,18 @@ class _Calibration:
                 "bit_depth": self.bits, "saturation_level": self.saturation}
 
 
+def _read_mask(path, shape):
+    """``--mask``: an image of the mosaic's shape, nonzero on the object."""
+    img = read_image(path, "--mask image")
+    data = img.data if img.data.ndim == 2 else img.data.max(axis=-1)
+    if data.shape != tuple(shape):
+        raise UserError(f"{img.path}: the --mask image has shape {data.shape}, the mosaic {tuple(shape)}")
+    obj = data > 0
+    if not obj.any():
+        raise UserError(f"{img.path}: the --mask image is zero everywhere (no object)")
+    return obj
+
+
 def _read_inputs(paths, layout, bit_depth):
     if not paths:
         raise UserError("give at least one image")
@@ -210,7 +226,7 @@ def _read_inputs(paths, layout, bit_depth):
 def import_polarization(images, out, layout, angles=None, pattern=None, bit_depth=None, dark=None, flat=None,
                         white_balance=None, white_reference=None, white_reflectance="1", camera=None,
                         illuminant=None, wavelengths=None, saturation=None, keep_edges=False, film_ior=None,
-                        substrate_ior=None, pixel_size=None) -> dict:
+                        substrate_ior=None, pixel_size=None, demosaic="residual", mask=None) -> dict:
     """Import polarization-camera images into a dataset folder ``out`` (see the module
     docstring for every option). Returns a summary (``shape``, ``angles``, ``valid_pixels``,
     ``units``, ``path``)."""
@@ -219,8 +235,15 @@ def import_polarization(images, out, layout, angles=None, pattern=None, bit_dept
     from thinfilm.core.mosaic import DEFAULT_PATTERN, parse_pattern
     from thinfilm.core.outputs import atomic_output_dir, check_output_dir
 
+    from .demosaic import METHODS
+
     if layout not in LAYOUTS:
         raise UserError(f"--layout: expected one of {', '.join(LAYOUTS)}, got {layout!r}")
+    demosaic_method = demosaic
+    if demosaic_method not in METHODS:
+        raise UserError(f"--demosaic: expected one of {', '.join(METHODS)}, got {demosaic_method!r}")
+    if layout == "separate" and mask is not None:
+        raise UserError("--mask describes the object on a mosaic; it applies to --layout dofp-rgb only")
     if layout == "separate":
         if pattern is not None:
             raise UserError("--pattern describes a mosaic; it applies to --layout dofp-rgb only")
@@ -244,7 +267,7 @@ def import_polarization(images, out, layout, angles=None, pattern=None, bit_dept
     wl = parse_wavelengths(wavelengths or DEFAULT_WAVELENGTHS)
     camera, illuminant = _colour_model(camera, illuminant, wl)
     meta_film = film_fields(film_ior, substrate_ior)
-    in_files = input_files(*images, dark, flat, white_reference, white_reflectance, camera, illuminant)
+    in_files = input_files(*images, dark, flat, white_reference, white_reflectance, camera, illuminant, mask)
     out = check_output_dir(out, command="import polarization", inputs=in_files)
     # the lock of --out is held from here to the end: a second writer stops at once
     with atomic_output_dir(out, command="import polarization", inputs=in_files) as tmp:
@@ -262,6 +285,7 @@ def import_polarization(images, out, layout, angles=None, pattern=None, bit_dept
             colour_map = np.broadcast_to(np.arange(3), shape)
             index_map = colour_map
         cal = _Calibration(first.bits, shape, dark, flat, saturation, index_map, first.is_float)
+        object_mask_given = None if mask is None else _read_mask(mask, hw)
 
         # 1-4: saturation, dark, normalization, flat field
         calibrated, saturated = [], np.zeros(shape, dtype=bool)
@@ -314,19 +338,33 @@ def import_polarization(images, out, layout, angles=None, pattern=None, bit_dept
 
         # demosaic / assemble, and the pixels that can be trusted
         if layout == "dofp-rgb":
-            from .demosaic import demosaic, edge_pixels, footprint
+            from .demosaic import demosaic, edge_pixels, footprint, object_mask, residual_demosaic
 
             frame = frame * gains[colour_map]
-            polarized = demosaic(frame, pat)
             bad_samples = saturated | (cal.bad_flat if cal.bad_flat is not None else False)
             bad = footprint(bad_samples, pat)
             n_sat = int(footprint(saturated, pat).sum())
-            edges = np.zeros(hw, dtype=bool) if keep_edges else edge_pixels(frame, pat)
+            if demosaic_method == "residual":
+                obj, mask_kind = (object_mask_given, "given") if object_mask_given is not None else (
+                    object_mask(frame, pat), "found")
+                if obj is None:
+                    mask_kind = "none (no dark background)"
+                polarized, unserved = residual_demosaic(frame, pat, mask=obj, exclude=bad_samples)
+                bad = bad | unserved
+                edges = np.zeros(hw, dtype=bool)
+                edge_text = ("kept: each side of the object's silhouette is interpolated from its own samples"
+                             if obj is not None else "kept")
+                mask_info = {"object_mask": mask_kind, "unserved_pixels": int(unserved.sum())}
+            else:
+                polarized = demosaic(frame, pat, "bilinear")
+                edges = np.zeros(hw, dtype=bool) if keep_edges else edge_pixels(frame, pat)
+                edge_text = "kept" if keep_edges else ("pixels whose interpolation crosses the object's silhouette "
+                                                       "are marked invalid")
+                mask_info = {}
             valid = ~bad & ~edges
             layout_info = {"layout": layout, "pattern": pat.text, "pattern_period": pat.diagram().split("\n"),
-                           "frames": len(imgs), "edge_pixels": int(edges.sum()),
-                           "edges": "kept" if keep_edges else "pixels whose interpolation crosses the object's "
-                                                              "silhouette are marked invalid"}
+                           "frames": len(imgs), "demosaic": demosaic_method, **mask_info,
+                           "edge_pixels": int(edges.sum()), "edges": edge_text}
         else:
             polarized = {a: x * gains for a, x in zip(angle_list, calibrated)}
             bad = saturated.any(axis=-1)
@@ -363,7 +401,8 @@ def cli_main(args) -> int:
         dark=args.dark, flat=args.flat, white_balance=args.white_balance, white_reference=args.white_reference,
         white_reflectance=args.white_reflectance, camera=args.camera, illuminant=args.illuminant,
         wavelengths=args.wavelengths, saturation=args.saturation, keep_edges=args.keep_edges,
-        film_ior=args.film_ior, substrate_ior=args.substrate_ior, pixel_size=args.pixel_size)
+        film_ior=args.film_ior, substrate_ior=args.substrate_ior, pixel_size=args.pixel_size,
+        demosaic=args.demosaic, mask=args.mask)
     h, w = s["shape"]
     print(f"wrote {s['path']} ({args.layout}, {w}x{h}, polarizer angles {', '.join(map(str, s['angles']))}; "
           f"{s['valid_pixels']} valid pixels, {s['saturated_pixels']} saturated; units {s['units']})")
