@@ -51,6 +51,8 @@ import numpy as np
 
 
 def _score(est, gt, direct=None):
+    from scipy import ndimage
+
     from thinfilm.evaluation import angular_error_deg
 
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -60,6 +62,11 @@ def _score(est, gt, direct=None):
         out = {"coverage": float(v.sum() / max(m.sum(), 1)), "normal_mean_deg": float(ne.mean()),
                "normal_p95_deg": float(np.percentile(ne, 95)),
                "thickness_mean_nm": float(np.abs(est.thickness_nm - gt["thickness"])[v].mean())}
+        # the same away from the silhouette: pixels 2 or more pixels inside the object
+        inner = v & ndimage.binary_erosion(m, np.ones((3, 3), bool), iterations=2)
+        out["inner_share"] = float(inner.sum() / max(v.sum(), 1))
+        out["normal_mean_inner_deg"] = float(angular_error_deg(est.normals, gt["normal"])[inner].mean())
+        out["thickness_mean_inner_nm"] = float(np.abs(est.thickness_nm - gt["thickness"])[inner].mean())
         if direct is not None:
             both = est.valid & direct.valid
             out["vs_direct_deg"] = float(angular_error_deg(est.normals, direct.normals)[both].mean())
@@ -199,8 +206,9 @@ def main(argv=None):
     print(f"resolution {args.resolution}, method {args.method or 'default'}; errors against ground truth, "
           f"and mean difference to the direct estimate")
     print(f"{'preset':11s} {'k':>2s} {'route':16s} {'cover':>6s} {'normal':>7s} {'p95':>6s} {'thick':>6s} "
-          f"{'vs dir':>7s} {'vs dir':>7s} {'img med':>8s}")
-    print(f"{'':11s} {'':>2s} {'':16s} {'':>6s} {'deg':>7s} {'deg':>6s} {'nm':>6s} {'deg':>7s} {'nm':>7s} {'rel':>8s}")
+          f"{'vs dir':>7s} {'vs dir':>7s} {'img med':>8s} {'inner:':>7s} {'normal':>7s} {'thick':>6s}")
+    print(f"{'':11s} {'':>2s} {'':16s} {'':>6s} {'deg':>7s} {'deg':>6s} {'nm':>6s} {'deg':>7s} {'nm':>7s} {'rel':>8s} "
+          f"{'share':>7s} {'deg':>7s} {'nm':>6s}")
     for preset in args.presets:
         for k in args.raw_per_pixel:
             r = mosaic_errors(preset, args.resolution, work, args.method, k)
@@ -210,8 +218,10 @@ def main(argv=None):
                 vs = (f"{s['vs_direct_deg']:7.2f} {s['vs_direct_nm']:7.2f}" if "vs_direct_deg" in s
                       else f"{'':7s} {'':7s}")
                 img = f"{100 * s['image_median_rel']:7.2f}%" if "image_median_rel" in s else ""
+                img = img or f"{'':8s}"
                 print(f"{preset:11s} {k:2d} {name:16s} {s['coverage']:6.3f} {s['normal_mean_deg']:7.2f} "
-                      f"{s['normal_p95_deg']:6.2f} {s['thickness_mean_nm']:6.2f} {vs} {img}", flush=True)
+                      f"{s['normal_p95_deg']:6.2f} {s['thickness_mean_nm']:6.2f} {vs} {img} {s['inner_share']:7.2f} "
+                      f"{s['normal_mean_inner_deg']:7.2f} {s['thickness_mean_inner_nm']:6.2f}", flush=True)
             t = r["timings_s"]
             print(f"{'':11s} {'':2s} times: import raw {t['import_raw']:.2f} s, mosaic {t['import_mosaic']:.2f} s "
                   f"(bilinear {t['import_mosaic_bilinear']:.2f} s); reconstruct direct {t['reconstruct_direct']:.2f} s "

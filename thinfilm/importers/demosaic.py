@@ -17,7 +17,9 @@
     than from their edge detector: each sample is divided by its own polarizer's smooth
     Malus-law modulation ``1 + q1 cos 2α + q2 sin 2α`` (``q = (S1, S2) / S0``, which varies
     slowly over a surface), so that every sample of a colour, whatever its polarizer, becomes
-    a sample of that colour's intensity ``S0``: four times denser than one plane. Where a
+    a sample of that colour's intensity ``S0``: four times denser than one plane; the
+    colours share the direction of polarization (that of the most densely sampled colour),
+    which a specular reflection has at every wavelength. Where a
     mask of the object is given or found (:func:`object_mask`), every step interpolates
     each pixel from samples on its own side of the silhouette only, so the object keeps
     its edge (the edge pixels stay valid instead of being masked).
@@ -183,9 +185,9 @@ def demosaic(raw, pattern, method: str = DEFAULT_METHOD, mask=None, exclude=None
 
 # -- residual interpolation ---------------------------------------------------------------------
 
-#: half-width (pixels) of the tent window of the local fit of a colour's intensity, in
-#: periods of the pattern (a window of 5 x 5 pixels for a 4 x 4 period)
-_S0_HALF_WIDTH = 0.75
+#: half-width of the tent window of the local fit of a colour's intensity, in periods of the
+#: pattern (a window of 7 x 7 pixels for a 4 x 4 period)
+_S0_HALF_WIDTH = 1.0
 #: the Malus-law modulation of a polarizer is never taken below this (a sample behind a
 #: polarizer crossed with fully polarized light carries no intensity information)
 _MIN_MODULATION = 0.02
@@ -193,6 +195,9 @@ _MIN_MODULATION = 0.02
 #: polarization q = (S1, S2) / S0, one per pass: the first from the bilinear planes, the next
 #: from the previous pass's planes
 _Q_SIGMAS = (0.25,)
+#: Gaussian σ (in periods) of the local means whose ratio gives each colour's degree of
+#: polarization relative to the densest colour's
+_DOLP_SIGMA = 1.0
 
 
 def _plane_kernel(pattern, checker: bool, widen: int = 1) -> np.ndarray:
@@ -284,38 +289,52 @@ def _residual_side(raw, pattern, use, use_side):
     served = np.ones(shape, dtype=bool)
     P, Q = pattern.shape
     inside = use_side.astype(np.float64)
+    planes, masks = {}, {}
     for c in range(3):
-        planes, masks = [], []
+        planes[c], masks[c] = [], []
         for a in angles:
             sites = pattern.lattices(c, a)
             m = _plane_mask(shape, pattern, sites) & use
             v, ok = _masked_plane(raw, m, pattern, len(sites) > 1)
-            planes.append(v)
-            masks.append((m, len(sites) > 1))
+            planes[c].append(v)
+            masks[c].append((m, len(sites) > 1))
             served &= ok
+    # the colour sampled most densely gives the direction of the polarization (the plane of
+    # incidence, the same at every wavelength); each colour scales it by its own degree
+    dense = max(range(3), key=lambda c: int((colour_map == c).sum()))
+    q_dense = _polarization(planes[dense], inside, angles, _Q_SIGMAS[0] * max(P, Q))
+    dolp_dense = np.hypot(*_polarization(planes[dense], inside, angles, _DOLP_SIGMA * max(P, Q)))
+    for c in range(3):
+        if c == dense:
+            q = q_dense
+        else:
+            dolp = np.hypot(*_polarization(planes[c], inside, angles, _DOLP_SIGMA * max(P, Q)))
+            ratio = np.clip(dolp / np.maximum(dolp_dense, 1e-6), 0.0, 4.0)
+            q = (q_dense[0] * ratio, q_dense[1] * ratio)
         col = (colour_map == c) & use
-        for sigma in _Q_SIGMAS:
-            planes, ok = _guided_planes(raw, planes, masks, col, inside, colour_map == c, angle_map, angles,
-                                        pattern, sigma * max(P, Q))
+        out_c, ok = _guided_planes(raw, q, masks[c], col, colour_map == c, angle_map, angles, pattern)
         served &= ok
         for k, a in enumerate(angles):
-            out[a][..., c] = planes[k]
+            out[a][..., c] = out_c[k]
     return out, served
 
 
-def _guided_planes(raw, planes, masks, col, inside, colour_sel, angle_map, angles, pattern, sigma):
-    """One pass of steps 2-3 of :func:`residual_demosaic` for one colour, its polarization q
-    taken from ``planes`` (the previous estimate): (planes, served)."""
+def _polarization(planes, inside, angles, sigma):
+    """q = (S1, S2) / S0 of one colour's planes: the ratio of their Gaussian local means over
+    the side's pixels (q varies slowly, S0 need not)."""
     from thinfilm.core.conventions import fit_stokes
 
-    P, Q = pattern.shape
-    # the smooth polarization of this colour, q = (S1, S2) / S0: ratios of local means over
-    # the side's pixels (q varies slowly, S0 need not)
     S0b, S1b, S2b = fit_stokes(np.stack(planes), angles)
     S0s, S1s, S2s = (_smooth(v * inside, sigma) if sigma > 0 else v for v in (S0b, S1b, S2b))
     pos = S0s > 0
-    q1 = np.where(pos, S1s / np.where(pos, S0s, 1.0), 0.0)
-    q2 = np.where(pos, S2s / np.where(pos, S0s, 1.0), 0.0)
+    return (np.where(pos, S1s / np.where(pos, S0s, 1.0), 0.0), np.where(pos, S2s / np.where(pos, S0s, 1.0), 0.0))
+
+
+def _guided_planes(raw, q, masks, col, colour_sel, angle_map, angles, pattern):
+    """Steps 2-3 of :func:`residual_demosaic` for one colour of polarization ``q``:
+    (planes, served)."""
+    P, Q = pattern.shape
+    q1, q2 = q
     norm = np.hypot(q1, q2)
     shrink = np.where(norm > 1.0 - _MIN_MODULATION, (1.0 - _MIN_MODULATION) / np.maximum(norm, 1e-300), 1.0)
     q1, q2 = q1 * shrink, q2 * shrink
@@ -343,16 +362,20 @@ def residual_demosaic(raw, pattern, mask=None, exclude=None):
     Steps, for each (colour, angle) plane, from the samples of the pixel's own side of the
     silhouette only:
 
-    1. bilinear interpolation of every plane of the colour (at the silhouette and the image
-       border, where the bilinear window is only partly covered, a local least-squares plane
-       that extrapolates the gradient), and from those the colour's smooth polarization
-       ``q = (S1, S2) / S0``: the ratio of Gaussian local means (σ a quarter period) of the
-       least-squares Stokes fit over the angles;
+    1. bilinear interpolation of every plane (at the silhouette and the image border, where
+       the bilinear window is only partly covered, a local least-squares plane that
+       extrapolates the gradient), and from those the smooth polarization ``q = (S1, S2) /
+       S0``: the ratio of Gaussian local means of the least-squares Stokes fit over the
+       angles. Its direction (the plane of incidence of a specular reflection, the same at
+       every wavelength) comes from the most densely sampled colour (green, σ a quarter
+       period); each other colour scales it by the ratio of its degree of polarization to
+       green's (σ one period);
     2. every sample of the colour divided by its polarizer's modulation
        ``½ (1 + q1 cos 2α + q2 sin 2α)`` samples the colour's intensity ``S0``: ``S0`` at
        every pixel is the local weighted least-squares plane through them (first-order
-       normalized convolution, a 5 × 5 tent window for a 4 × 4 period), the samples weighted
-       by the square of their modulation;
+       normalized convolution, a 7 × 7 tent window for a 4 × 4 period, twice that where the
+       samples of the window do not fix a slope), the samples weighted by the square of their
+       modulation;
     3. the guided estimate of the plane is its modulation times ``S0``; the residual between
        the plane's samples and that estimate is interpolated bilinearly and added back, so
        every sample keeps its value.

@@ -16,7 +16,10 @@ Two layouts (``--layout``):
     lit object before a dark background), or ``bilinear`` per plane; both float64 and exact
     at the sampled pixels.
 
-Calibration, in this order, on the raw values of every image (and of the reference images):
+Calibration, in this order, on the raw values of every image (and of the reference images);
+bad calibration input (a shape that differs from the images', a negative or non-finite dark, a
+flat field at or below the dark level anywhere, an extinction ratio outside [0, 1)) stops the
+import with one line:
 
 1. saturation: a sample at or above ``--saturation`` (default: within 0.2 % of the largest code
    of the bit depth, ``2^bits − 1``) invalidates its pixel (with ``dofp-rgb``: every pixel whose
@@ -28,7 +31,16 @@ Calibration, in this order, on the raw values of every image (and of the referen
 4. flat field: ``--flat FILE`` (an image of a uniform, unpolarized field, same shape; dark
    subtracted too) divides each pixel by its response relative to the mean of its colour and
    angle (``dofp-rgb``) or of its channel (``separate``);
-5. white balance to reflectance units, where a perfect mirror seen without a polarizer gives
+5. polarizers (after the demosaicing, ``dofp-rgb``): ``--polarizer-extinction E`` (the measured
+   extinction ratio, minimum over maximum transmittance) and ``--polarizer-offset DEG`` (the
+   measured axis minus the nominal angle), each one number, one per angle (in the order of
+   ``--angles``, or of the pattern's sorted angles) or a text file of them: per pixel the
+   Stokes vector is fitted through the real analyzer
+   (:func:`thinfilm.core.conventions.analyzer_matrix`) and the images are corrected to those
+   of ideal polarizers at the nominal angles, which the reconstruction's model assumes;
+   ``meta.json`` records the values and the factor by which the correction multiplies the
+   noise of S1, S2;
+6. white balance to reflectance units, where a perfect mirror seen without a polarizer gives
    (1, 1, 1) and unpolarized white behind an ideal polarizer 0.5:
    ``--white-balance R,G,B`` multiplies each colour by a gain; or ``--white-reference IMAGE``,
    an image of a diffuse reference target (unpolarized, seen through the polarizers like the
@@ -54,8 +66,9 @@ import numpy as np
 
 from thinfilm.core.errors import ThinfilmWarning, UserError
 
-from .common import (DEFAULT_WAVELENGTHS, csv_records, file_record, film_fields, import_meta, input_files, parse_angles, parse_numbers,
-                     parse_wavelengths, reference_reflectance, warn_relative_units)
+from .common import (DEFAULT_WAVELENGTHS, POLARIZER_CORRECTED, check_dark_values, correct_polarizers, csv_records,
+                     file_record, film_fields, import_meta, input_files, parse_angles, parse_numbers, parse_wavelengths,
+                     polarizer_calibration, reference_reflectance, warn_relative_units)
 from .images import apply_bit_depth, read_image
 
 __all__ = ["LAYOUTS", "SATURATION_MARGIN", "import_polarization", "cli_main"]
@@ -123,6 +136,7 @@ class _Calibration:
             self.dark_record = level
             return level
         img = self._read(dark, "--dark frame")
+        check_dark_values(img.data, f"{img.path}: the --dark frame")
         self.dark_record = file_record(img.path, "dark")
         return img.data.astype(np.float64)
 
@@ -155,6 +169,11 @@ class _Calibration:
         good = (x > 0) & ~sat
         if not good.any():
             raise UserError(f"{img.path}: the --flat field is at or below the dark level (or saturated) everywhere")
+        if not good.all():
+            r, c = np.argwhere(~good)[0][:2]
+            raise UserError(f"{img.path}: the --flat field is at or below the dark level (or saturated) at "
+                            f"{int((~good).sum())} samples, the first at row {r}, column {c}; a flat field must be "
+                            f"positive everywhere")
         rel = np.ones_like(x)
         for k in np.unique(self.index_map):
             sel = self.index_map == k
@@ -226,7 +245,8 @@ def _read_inputs(paths, layout, bit_depth):
 def import_polarization(images, out, layout, angles=None, pattern=None, bit_depth=None, dark=None, flat=None,
                         white_balance=None, white_reference=None, white_reflectance="1", camera=None,
                         illuminant=None, wavelengths=None, saturation=None, keep_edges=False, film_ior=None,
-                        substrate_ior=None, pixel_size=None, demosaic="residual", mask=None) -> dict:
+                        substrate_ior=None, pixel_size=None, demosaic="residual", mask=None,
+                        polarizer_extinction=None, polarizer_offset=None) -> dict:
     """Import polarization-camera images into a dataset folder ``out`` (see the module
     docstring for every option). Returns a summary (``shape``, ``angles``, ``valid_pixels``,
     ``units``, ``path``)."""
@@ -260,6 +280,7 @@ def import_polarization(images, out, layout, angles=None, pattern=None, bit_dept
         angle_list = list(pat.angles)
     if white_balance is not None and white_reference is not None:
         raise UserError("give either --white-balance or --white-reference, not both")
+    pol_entry, pol_records = polarizer_calibration(polarizer_extinction, polarizer_offset, angle_list)
     if bit_depth is not None and not 1 <= int(bit_depth) <= 16:
         raise UserError(f"--bit-depth: expected 1 to 16 bits, got {bit_depth}")
     if pixel_size is not None and not (np.isfinite(pixel_size) and pixel_size > 0):
@@ -267,7 +288,8 @@ def import_polarization(images, out, layout, angles=None, pattern=None, bit_dept
     wl = parse_wavelengths(wavelengths or DEFAULT_WAVELENGTHS)
     camera, illuminant = _colour_model(camera, illuminant, wl)
     meta_film = film_fields(film_ior, substrate_ior)
-    in_files = input_files(*images, dark, flat, white_reference, white_reflectance, camera, illuminant, mask)
+    in_files = input_files(*images, dark, flat, white_reference, white_reflectance, camera, illuminant, mask,
+                           polarizer_extinction, polarizer_offset)
     out = check_output_dir(out, command="import polarization", inputs=in_files)
     # the lock of --out is held from here to the end: a second writer stops at once
     with atomic_output_dir(out, command="import polarization", inputs=in_files) as tmp:
@@ -375,6 +397,10 @@ def import_polarization(images, out, layout, angles=None, pattern=None, bit_dept
             layout_info = {"layout": layout, "files_angles_deg": dict(zip([img.path.name for img in imgs], angle_list))}
         if not valid.any():
             raise UserError(f"{first.path}: no pixel is usable (saturated or at the flat field's dark level everywhere)")
+        if pol_entry is not None:   # real polarizers (extinction, axis offsets) -> ideal ones
+            polarized, gain = correct_polarizers(polarized, pol_entry)
+            calib["polarizer"] = dict(pol_entry, correction=POLARIZER_CORRECTED, noise_gain_s1_s2=gain)
+            inputs += pol_records
 
         fields = dict(
             wavelengths_nm=[float(v) for v in wl],
@@ -402,7 +428,8 @@ def cli_main(args) -> int:
         white_reflectance=args.white_reflectance, camera=args.camera, illuminant=args.illuminant,
         wavelengths=args.wavelengths, saturation=args.saturation, keep_edges=args.keep_edges,
         film_ior=args.film_ior, substrate_ior=args.substrate_ior, pixel_size=args.pixel_size,
-        demosaic=args.demosaic, mask=args.mask)
+        demosaic=args.demosaic, mask=args.mask, polarizer_extinction=args.polarizer_extinction,
+        polarizer_offset=args.polarizer_offset)
     h, w = s["shape"]
     print(f"wrote {s['path']} ({args.layout}, {w}x{h}, polarizer angles {', '.join(map(str, s['angles']))}; "
           f"{s['valid_pixels']} valid pixels, {s['saturated_pixels']} saturated; units {s['units']})")
