@@ -19,10 +19,13 @@ reconstructed with the RGB method at ``--resolution``:
     the dataset's per-angle captures (``polarized_rgb.exr``), as the generator writes them;
 ``raw``
     the generator's ``raw.tiff`` (noise at the raw level, one exposure), through
-    ``thinfilm import polarization --layout dofp-rgb`` (default ``--demosaic residual``);
+    ``thinfilm import polarization --layout dofp-rgb`` (default ``--demosaic residual``, the
+    object's outermost 3 pixels invalid);
 ``mosaic``
     a mosaic built from the dataset's own captures (16-bit), through the same import: the
     demosaicing alone, the noise being the direct path's;
+``mosaic_edges_kept``
+    the same with ``--edge-margin 0``: every pixel at the silhouette kept;
 ``mosaic_bilinear``
     the same mosaic with ``--demosaic bilinear`` (the silhouette band marked invalid), for
     comparison.
@@ -176,6 +179,8 @@ def mosaic_errors(preset: str = "hemisphere", resolution: int = 64, work=None, m
         tifffile.imwrite(work / f"{tag}_mosaic.tif", codes, photometric="minisblack")
         wb = f"{scale!r},{scale!r},{scale!r}"
         route("mosaic", [work / f"{tag}_mosaic.tif"], "residual", pattern=sensor["pattern"], white_balance=wb)
+        route("mosaic_edges_kept", [work / f"{tag}_mosaic.tif"], "residual", pattern=sensor["pattern"],
+              white_balance=wb, edge_margin=0)
         route("mosaic_bilinear", [work / f"{tag}_mosaic.tif"], "bilinear", pattern=sensor["pattern"],
               white_balance=wb)
     out["timings_s"] = times
@@ -188,7 +193,7 @@ def parse_pattern_of(sensor):
     return parse_pattern(sensor["pattern"])
 
 
-ROUTES = ("direct", "raw", "mosaic", "mosaic_bilinear")
+ROUTES = ("direct", "raw", "mosaic", "mosaic_edges_kept", "mosaic_bilinear")
 
 
 def main(argv=None):

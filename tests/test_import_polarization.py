@@ -368,16 +368,25 @@ def test_residual_demosaic_keeps_the_object_edge():
 
 
 def test_dofp_import_keeps_the_silhouette_valid_with_the_residual_method(tmp_path):
+    """residual: only the object's outermost --edge-margin pixels are invalid (0: none), the
+    background beside the object stays valid; bilinear: a band on both sides."""
+    from scipy import ndimage
+
     n = 64
     yy, xx = np.mgrid[0:n, 0:n]
     disc = (yy - 31.5) ** 2 + (xx - 31.5) ** 2 < 22 ** 2
     src = {a: np.where(disc[..., None], img, 1e-4) for a, img in _fringe_field(n, 24.0).items()}
     write_tiff(tmp_path / "raw.tif", np.rint(build_mosaic(src) * 60000).astype(np.uint16))
-    _import([tmp_path / "raw.tif", "--layout", "dofp-rgb", "--white-balance", "1,1,1", "--out", tmp_path / "res"])
-    _import([tmp_path / "raw.tif", "--layout", "dofp-rgb", "--demosaic", "bilinear", "--white-balance", "1,1,1",
-             "--out", tmp_path / "bil"])
-    res, bil = read_dataset(tmp_path / "res"), read_dataset(tmp_path / "bil")
-    assert res.valid is None or res.valid.all()
-    assert not bil.valid[disc].all()                           # the bilinear band at the silhouette
-    assert res.meta["sensor"]["demosaic"] == "residual" and res.meta["sensor"]["object_mask"] == "found"
-    assert bil.meta["sensor"]["demosaic"] == "bilinear"
+    base = [tmp_path / "raw.tif", "--layout", "dofp-rgb", "--white-balance", "1,1,1"]
+    _import(base + ["--out", tmp_path / "res"])
+    _import(base + ["--edge-margin", "0", "--out", tmp_path / "kept"])
+    _import(base + ["--demosaic", "bilinear", "--out", tmp_path / "bil"])
+    res, kept, bil = (read_dataset(tmp_path / k) for k in ("res", "kept", "bil"))
+    depth = ndimage.distance_transform_cdt(disc, metric="chessboard")     # 1 at the outermost pixels
+    np.testing.assert_array_equal(~res.valid, disc & (depth <= 3))
+    assert kept.valid is None or kept.valid.all()
+    assert not bil.valid[disc & (depth <= 3)].any()
+    assert (~bil.valid).sum() > 2 * (~res.valid).sum()
+    sensor = res.meta["sensor"]
+    assert sensor["demosaic"] == "residual" and sensor["object_mask"] == "found" and sensor["edge_margin"] == 3
+    assert kept.meta["sensor"]["edge_margin"] == 0 and bil.meta["sensor"]["demosaic"] == "bilinear"

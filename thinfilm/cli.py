@@ -300,9 +300,12 @@ def _add_import_parsers(sub) -> None:
     pol.add_argument("--mask", default=None, metavar="IMAGE",
                      help="dofp-rgb: the object's pixels (nonzero), same shape as the mosaic (default: found on "
                           "the mosaic when a lit object is seen before a dark background)")
+    pol.add_argument("--edge-margin", type=int, default=None, metavar="N",
+                     help="dofp-rgb with --demosaic residual: mark the object's outermost N pixels invalid "
+                          "(default 3; 0 keeps them)")
     pol.add_argument("--keep-edges", action="store_true",
-                     help="dofp-rgb with --demosaic bilinear: keep pixels whose interpolation crosses the "
-                          "object's silhouette valid")
+                     help="dofp-rgb: keep every pixel at the object's silhouette valid (bilinear: those whose "
+                          "interpolation crosses it; residual: --edge-margin 0)")
     common(pol)
     pol.set_defaults(target="thinfilm.importers.polarization:cli_main")
 

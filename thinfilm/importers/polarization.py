@@ -13,8 +13,9 @@ Two layouts (``--layout``):
     ``residual`` (default), polarization- and colour-aware residual interpolation that
     interpolates the object and the background each from its own samples (the object's
     pixels: ``--mask IMAGE``, nonzero on the object, or found on the mosaic when it shows a
-    lit object before a dark background), or ``bilinear`` per plane; both float64 and exact
-    at the sampled pixels.
+    lit object before a dark background; the object's outermost ``--edge-margin`` pixels,
+    default :data:`thinfilm.importers.demosaic.DEFAULT_EDGE_MARGIN`, are marked invalid), or
+    ``bilinear`` per plane; both float64 and exact at the sampled pixels.
 
 Calibration, in this order, on the raw values of every image (and of the reference images);
 bad calibration input (a shape that differs from the images', a negative or non-finite dark, a
@@ -246,7 +247,7 @@ def import_polarization(images, out, layout, angles=None, pattern=None, bit_dept
                         white_balance=None, white_reference=None, white_reflectance="1", camera=None,
                         illuminant=None, wavelengths=None, saturation=None, keep_edges=False, film_ior=None,
                         substrate_ior=None, pixel_size=None, demosaic="residual", mask=None,
-                        polarizer_extinction=None, polarizer_offset=None) -> dict:
+                        polarizer_extinction=None, polarizer_offset=None, edge_margin=None) -> dict:
     """Import polarization-camera images into a dataset folder ``out`` (see the module
     docstring for every option). Returns a summary (``shape``, ``angles``, ``valid_pixels``,
     ``units``, ``path``)."""
@@ -262,6 +263,10 @@ def import_polarization(images, out, layout, angles=None, pattern=None, bit_dept
     demosaic_method = demosaic
     if demosaic_method not in METHODS:
         raise UserError(f"--demosaic: expected one of {', '.join(METHODS)}, got {demosaic_method!r}")
+    if edge_margin is not None and (int(edge_margin) != edge_margin or edge_margin < 0):
+        raise UserError(f"--edge-margin: expected a whole number of pixels >= 0, got {edge_margin}")
+    if edge_margin is not None and demosaic_method != "residual":
+        raise UserError("--edge-margin applies to --demosaic residual (bilinear marks its own band; see --keep-edges)")
     if layout == "separate" and mask is not None:
         raise UserError("--mask describes the object on a mosaic; it applies to --layout dofp-rgb only")
     if layout == "separate":
@@ -360,7 +365,8 @@ def import_polarization(images, out, layout, angles=None, pattern=None, bit_dept
 
         # demosaic / assemble, and the pixels that can be trusted
         if layout == "dofp-rgb":
-            from .demosaic import demosaic, edge_pixels, footprint, object_mask, residual_demosaic
+            from .demosaic import (DEFAULT_EDGE_MARGIN, demosaic, edge_pixels, footprint, object_mask, residual_demosaic,
+                                   silhouette_band)
 
             frame = frame * gains[colour_map]
             bad_samples = saturated | (cal.bad_flat if cal.bad_flat is not None else False)
@@ -373,10 +379,13 @@ def import_polarization(images, out, layout, angles=None, pattern=None, bit_dept
                     mask_kind = "none (no dark background)"
                 polarized, unserved = residual_demosaic(frame, pat, mask=obj, exclude=bad_samples)
                 bad = bad | unserved
-                edges = np.zeros(hw, dtype=bool)
-                edge_text = ("kept: each side of the object's silhouette is interpolated from its own samples"
+                margin = DEFAULT_EDGE_MARGIN if edge_margin is None else int(edge_margin)
+                edges = np.zeros(hw, dtype=bool) if (obj is None or keep_edges) else silhouette_band(obj, margin)
+                edge_text = (f"each side of the object's silhouette is interpolated from its own samples; the object's "
+                             f"outermost {0 if keep_edges else margin} pixels are marked invalid"
                              if obj is not None else "kept")
-                mask_info = {"object_mask": mask_kind, "unserved_pixels": int(unserved.sum())}
+                mask_info = {"object_mask": mask_kind, "unserved_pixels": int(unserved.sum()),
+                             "edge_margin": 0 if keep_edges else margin}
             else:
                 polarized = demosaic(frame, pat, "bilinear")
                 edges = np.zeros(hw, dtype=bool) if keep_edges else edge_pixels(frame, pat)
@@ -429,7 +438,7 @@ def cli_main(args) -> int:
         wavelengths=args.wavelengths, saturation=args.saturation, keep_edges=args.keep_edges,
         film_ior=args.film_ior, substrate_ior=args.substrate_ior, pixel_size=args.pixel_size,
         demosaic=args.demosaic, mask=args.mask, polarizer_extinction=args.polarizer_extinction,
-        polarizer_offset=args.polarizer_offset)
+        polarizer_offset=args.polarizer_offset, edge_margin=args.edge_margin)
     h, w = s["shape"]
     print(f"wrote {s['path']} ({args.layout}, {w}x{h}, polarizer angles {', '.join(map(str, s['angles']))}; "
           f"{s['valid_pixels']} valid pixels, {s['saturated_pixels']} saturated; units {s['units']})")
