@@ -223,6 +223,13 @@ def _correlate(x, kernel):
     return ndimage.correlate(x, kernel, mode="constant", cval=0.0)
 
 
+def _correlate_separable(x, k_rows, k_cols):
+    from scipy import ndimage
+
+    x = ndimage.correlate1d(x, k_rows, axis=0, mode="constant", cval=0.0)
+    return ndimage.correlate1d(x, k_cols, axis=1, mode="constant", cval=0.0)
+
+
 def _masked_plane(values, samples, pattern, checker: bool):
     """Bilinear normalized convolution of the ``samples`` (bool (H, W)) of one plane, with
     the plane's kernel; where the kernel's window is only partly covered by samples (at the
@@ -238,7 +245,7 @@ def _masked_plane(values, samples, pattern, checker: bool):
     out = num / np.where(den > 1e-12, den, 1.0)
     served = den > 1e-12
     if partial.any():
-        fit, ok = _local_linear_fit(values, np.ones_like(w), samples, 2.0 * max(P, Q))
+        fit, ok = _local_linear_fit(values, np.ones_like(w), samples, 2.0 * max(P, Q), wide_fallback=False)
         out = np.where(partial & ok, fit, out)
         served = served | (partial & ok)
     return out, served
@@ -252,14 +259,14 @@ def _local_linear_fit(raw, gain, samples, half_width: float, wide_fallback: bool
     r = int(np.ceil(half_width)) - 1 if float(half_width).is_integer() else int(np.floor(half_width))
     d = np.arange(-r, r + 1, dtype=np.float64)
     t = np.clip(1.0 - np.abs(d) / half_width, 0.0, None)
-    K = np.outer(t, t)
-    dr, dc = np.meshgrid(d, d, indexing="ij")
     w = samples * gain * gain
     y = samples * gain * raw
-    # moments of the window (correlation: the kernel offsets are sample minus pixel)
-    m = {k: _correlate(w, K * f) for k, f in
-         (("1", 1.0), ("r", dr), ("c", dc), ("rr", dr * dr), ("rc", dr * dc), ("cc", dc * dc))}
-    b = np.stack([_correlate(y, K), _correlate(y, K * dr), _correlate(y, K * dc)], axis=-1)
+    # moments of the window (correlation: the kernel offsets are sample minus pixel); the tent
+    # window and the monomials are separable: one pass along the rows, one along the columns
+    m = {k: _correlate_separable(w, t * d ** pr, t * d ** pc) for k, pr, pc in
+         (("1", 0, 0), ("r", 1, 0), ("c", 0, 1), ("rr", 2, 0), ("rc", 1, 1), ("cc", 0, 2))}
+    b = np.stack([_correlate_separable(y, t, t), _correlate_separable(y, t * d, t),
+                  _correlate_separable(y, t, t * d)], axis=-1)
     A = np.stack([np.stack([m["1"], m["r"], m["c"]], -1),
                   np.stack([m["r"], m["rr"], m["rc"]], -1),
                   np.stack([m["c"], m["rc"], m["cc"]], -1)], axis=-2)
