@@ -286,6 +286,10 @@ def build_parser() -> argparse.ArgumentParser:
                     help="fit only these wavelengths (nm)")
     fs.add_argument("--thickness-range", type=float, nargs=2, metavar=("MIN", "MAX"), default=None,
                     help="thicknesses searched (nm; default 1 to 10000, less where the sampling is coarse)")
+    fs.add_argument("--resolution", type=float, default=None, metavar="FWHM",
+                    help="the spectrometer's line width, full width at half maximum in nm (default: fitted)")
+    fs.add_argument("--thickness-spread", type=float, default=None, metavar="SIGMA",
+                    help="thickness spread over the light spot, standard deviation in nm (default: fitted)")
     fs.add_argument("--fit-film-ior", action="store_true", help="fit the film index too")
     fs.add_argument("--json", action="store_true", help="one JSON object per line, one per spectrum")
     fs.set_defaults(target="thinfilm.fit_spectrum:cli_main")
