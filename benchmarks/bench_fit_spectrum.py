@@ -13,10 +13,15 @@ started from the best of a coarse thickness grid (the response started flat at t
 level); with ``--with-files`` it fits the normalised ``(I − dark)/(white − dark)``. It is slow (one spectrum at a time, finite-difference Jacobians) and falls into the
 wrong interference order whenever the start is a fringe off.
 
+Against an earlier version of the project (``--baseline-python CMD``: an interpreter, or a
+wrapper script, that imports that version): the same spectra are fitted by ``fit_spectra`` in
+a subprocess run by ``CMD``, interleaved with ours, and the ratio of the rates is printed.
+
 Usage::
 
     python benchmarks/bench_fit_spectrum.py [--count 300] [--naive-count 60] [--substrate free|silicon]
                                             [--with-files] [--repeats 3] [--seed 0]
+                                            [--baseline-python CMD]
 
 Prints absolute times, spectra per second of both, their ratio (medians over interleaved
 repeats), and the accuracy of both by thickness band.
@@ -115,7 +120,12 @@ def main(argv=None):
     ap.add_argument("--with-files", action="store_true", help="give a background and a reference")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--baseline-python", default=None, metavar="CMD",
+                    help="interpreter importing an earlier version: its fit_spectra timed on the same spectra")
+    ap.add_argument("--fit-only", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    if args.fit_only:
+        return _fit_only(args)
 
     from thinfilm.reconstruction.spectrum_fit import FilmModel, fit_spectra
 
@@ -153,9 +163,42 @@ def main(argv=None):
     print(f"naive least_squares from a grid start:          {tn:.2f} s for {naive_idx.size} spectra "
           f"= {rate_n:.1f} spectra/s (median of {args.repeats}: {', '.join(f'{v:.2f}' for v in times_n)} s)")
     print(f"speed ratio (spectra/s): {rate_r / rate_n:.1f}x")
+    if args.baseline_python:
+        import shlex
+        import subprocess
+        import sys
+
+        cmd = [*shlex.split(args.baseline_python), __file__, "--fit-only", "--count", str(args.count), "--seed", str(args.seed),
+               "--substrate", args.substrate] + (["--with-files"] if args.with_files else [])
+        times_b, times_o = [], []
+        for _ in range(args.repeats):  # interleaved with ours again
+            out = subprocess.run(cmd, capture_output=True, text=True, check=True).stdout.split()
+            times_b.append(float(out[0]))
+            est_b = np.array([float(v) for v in out[1:]])
+            t = time.perf_counter()
+            robust()
+            times_o.append(time.perf_counter() - t)
+        tb, to = np.median(times_b), np.median(times_o)
+        print(f"baseline fit_spectra ({args.baseline_python}): {tb:.2f} s = {args.count / tb:.1f} spectra/s; "
+              f"this version in the same run: {to:.2f} s = {args.count / to:.1f} spectra/s; "
+              f"ratio {tb / to:.2f}x", file=sys.stdout)
+        print(f"accuracy, baseline fit_spectra: {accuracy(truth, est_b)}")
     print(f"accuracy, fit_spectra: {accuracy(truth, est_r)}")
     print(f"accuracy, naive (same {naive_idx.size} spectra as below): {accuracy(truth[naive_idx], est_n)}")
     print(f"accuracy, fit_spectra on those {naive_idx.size}: {accuracy(truth[naive_idx], np.asarray(est_r)[naive_idx])}")
+
+
+def _fit_only(args):
+    """Time fit_spectra alone on the benchmark's spectra; print the seconds and the thicknesses."""
+    from thinfilm.reconstruction.spectrum_fit import FilmModel, fit_spectra
+
+    n2, n3, k3 = SUBSTRATES[args.substrate]
+    lam = np.linspace(400.0, 850.0, 600)
+    _, raw, dark, white = make_spectra(args.count, n2, n3, k3, args.seed, lam, args.with_files)
+    files = {"background": dark, "reference": white} if args.with_files else {}
+    t = time.perf_counter()
+    fits = fit_spectra(lam, raw, FilmModel(n2, n3, k3), **files)
+    print(time.perf_counter() - t, *(f.thickness_nm for f in fits))
 
 
 if __name__ == "__main__":

@@ -49,6 +49,7 @@ def main(argv=None):
     ap.add_argument("--methods", nargs="+", default=None)
     ap.add_argument("--only", nargs="+", default=None)
     ap.add_argument("--no-generate", action="store_true")
+    ap.add_argument("--refine", action="store_true", help="also refine each estimate (rows METHOD+refine)")
     args = ap.parse_args(argv)
 
     from thinfilm.core.errors import UserError
@@ -86,20 +87,34 @@ def main(argv=None):
                     except UserError as e:
                         print(f"{scene['name']:22s} {kind:8s} {method or '-':9s} refused: {e}")
                         continue
-                    s = score(ds, est, kind)
-                    ok = passes(kind, s)
-                    key = f"{kind}/{m.name}"
-                    counts.setdefault(key, [0, 0])
-                    counts[key][0] += ok
-                    counts[key][1] += 1
-                    extra = f" n2 {s['film_ior_error']:.4f}" if "film_ior_error" in s else ""
-                    extra += pool_calibration(calibration, key, s)
-                    print(f"{scene['name']:22s} {kind:8s} {m.name:9s} {'ok ' if ok else 'BAD'} normal "
-                          f"{s['normal_mean']:5.2f}/{s['normal_p95']:5.2f} thickness {s['thickness_mean']:6.2f}"
-                          f"{extra} coverage {s['coverage']:.3f} ({time.perf_counter() - t0:.1f} s)", flush=True)
+                    rows = [(est, m.name, time.perf_counter() - t0)]
+                    if args.refine:
+                        from thinfilm.refine import refine
+
+                        t1 = time.perf_counter()
+                        with warnings.catch_warnings():
+                            warnings.simplefilter("ignore")
+                            rows.append((refine(ds, est), f"{m.name}+refine", time.perf_counter() - t1))
+                    for est, name, seconds in rows:
+                        row(scene, kind, ds, est, name, seconds, counts, calibration)
     print("passed: " + ", ".join(f"{k} {v[0]}/{v[1]}" for k, v in counts.items()))
     print_calibration(calibration)
     return 0
+
+
+def row(scene, kind, ds, est, name, seconds, counts, calibration):
+    """Scores one estimate, prints its row and adds it to the counts."""
+    s = score(ds, est, kind)
+    ok = passes(kind, s)
+    key = f"{kind}/{name}"
+    counts.setdefault(key, [0, 0])
+    counts[key][0] += ok
+    counts[key][1] += 1
+    extra = f" n2 {s['film_ior_error']:.4f}" if "film_ior_error" in s else ""
+    extra += pool_calibration(calibration, key, s)
+    print(f"{scene['name']:22s} {kind:8s} {name:16s} {'ok ' if ok else 'BAD'} normal "
+          f"{s['normal_mean']:5.2f}/{s['normal_p95']:5.2f} thickness {s['thickness_mean']:6.2f}"
+          f"{extra} coverage {s['coverage']:.3f} ({seconds:.1f} s)", flush=True)
 
 
 if __name__ == "__main__":

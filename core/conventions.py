@@ -50,6 +50,7 @@ __all__ = [
     "stokes_design_matrix",
     "check_polarizer_angles",
     "fit_stokes",
+    "analyzer_matrix",
     "malus_intensity",
     "specular_stokes",
     "s_polarized",
@@ -143,6 +144,26 @@ def fit_stokes(images, angles_deg):
     pinv = np.linalg.pinv(stokes_design_matrix(angles))  # (3, K)
     s = np.tensordot(pinv, images, axes=(1, 0))
     return s[0], s[1], s[2]
+
+
+def analyzer_matrix(angles_deg, extinction_ratio=0.0, offset_deg=0.0) -> np.ndarray:
+    """(K, 3) rows giving the intensity behind each of K real linear polarizers from the
+    linear Stokes vector: ``½ (S0 + D (S1 cos 2θ + S2 sin 2θ))`` with ``θ = α + δ`` the
+    polarizer's true axis (nominal angle α plus its measured offset δ, degrees) and ``D = (1 −
+    ε) / (1 + ε)`` its diattenuation from its extinction ratio ε (minimum over maximum
+    transmittance; 0: an ideal polarizer). Unpolarized light is transmitted ½, as by an ideal
+    polarizer: the gains of a white target seen through the polarizers normalize the
+    polarizer's mean transmittance away. ``extinction_ratio`` and ``offset_deg`` are numbers
+    or one per angle. With ε = 0 and δ = 0 this is :func:`stokes_design_matrix`.
+
+    >>> m = analyzer_matrix([0, 45, 90, 135], 0.1, 2.0)
+    >>> bool(np.allclose(m[:, 0], 0.5)), round(float(np.hypot(m[0, 1], m[0, 2])), 6)
+    (True, 0.409091)
+    """
+    a = np.radians(np.asarray(angles_deg, dtype=np.float64).ravel() + np.asarray(offset_deg, dtype=np.float64))
+    eps = np.broadcast_to(np.asarray(extinction_ratio, dtype=np.float64), a.shape)
+    d = (1.0 - eps) / (1.0 + eps)
+    return 0.5 * np.stack([np.ones_like(a), d * np.cos(2 * a), d * np.sin(2 * a)], axis=-1)
 
 
 def malus_intensity(S0, S1, S2, angles_deg):

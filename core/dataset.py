@@ -26,8 +26,14 @@ from .errors import UserError
 from .exr import band_channel, band_channels, pol_layer, polarized_rgb_channels, read_exr, write_exr
 from .files import read_json, write_json
 
-__all__ = ["FORMAT", "GROUND_TRUTH_CHANNELS", "Dataset", "read_dataset", "write_dataset", "dataset_meta",
-           "software_versions"]
+__all__ = ["FORMAT", "GROUND_TRUTH_CHANNELS", "POLARIZER_NOT_CORRECTED", "Dataset", "read_dataset", "write_dataset",
+           "dataset_meta", "software_versions", "check_polarizer_calibration"]
+
+#: ``calibration.polarizer.correction`` of an imported dataset whose captures could not be
+#: corrected for the polarizer's measured extinction ratio or axis offset (one s-polarized
+#: cube): the observation model (:mod:`thinfilm.core.model`, whose rig knows the polarizer
+#: angles only) and every estimator assume ideal polarizers at the nominal angles
+POLARIZER_NOT_CORRECTED = "none: the captures are those of the real polarizer"
 
 FORMAT = "thinfilm-dataset/1"
 GROUND_TRUTH_CHANNELS = ("normal.X", "normal.Y", "normal.Z", "zenith", "azimuth",
@@ -190,6 +196,26 @@ class Dataset:
         raise UserError(f"{self.path}: dataset holds no image")
 
 
+def check_polarizer_calibration(meta: dict, where) -> bool:
+    """Warn (:class:`~thinfilm.core.errors.ThinfilmWarning`) when ``meta.json`` records a
+    polarizer extinction ratio or axis offset that the captures were not corrected for
+    (:data:`POLARIZER_NOT_CORRECTED`): the estimators model ideal polarizers. Returns whether
+    it warned."""
+    import warnings
+
+    from .errors import ThinfilmWarning
+
+    cal = meta.get("calibration")
+    pol = cal.get("polarizer") if isinstance(cal, dict) else None
+    if not isinstance(pol, dict) or pol.get("correction") != POLARIZER_NOT_CORRECTED:
+        return False
+    warnings.warn(f"{where}: the captures were taken through a polarizer of extinction ratio "
+                  f"{pol.get('extinction_ratio')} and axis offset {pol.get('angle_offset_deg')} deg that they could "
+                  f"not be corrected for; the estimators model an ideal polarizer at the nominal angle, so the "
+                  f"polarized part of the estimate is biased", ThinfilmWarning, stacklevel=3)
+    return True
+
+
 def read_dataset(path, need=("polarized_rgb",), optional=None) -> Dataset:
     """Read and validate a dataset folder.
 
@@ -218,6 +244,7 @@ def read_dataset(path, need=("polarized_rgb",), optional=None) -> Dataset:
     meta_path = root / "meta.json"
     meta = read_json(meta_path, missing="not a thinfilm dataset folder", finite=True)
     _check_meta(meta, meta_path)
+    check_polarizer_calibration(meta, meta_path)
     if meta.get("format") != FORMAT:
         raise UserError(f"{meta_path}: unknown format {meta.get('format')!r}, expected '{FORMAT}'")
     need = set(need)

@@ -30,9 +30,10 @@ Examples
 
 from __future__ import annotations
 
-from .dataset import (FORMAT, GROUND_TRUTH_CHANNELS, Dataset, dataset_meta, read_dataset, software_versions,
-                      write_dataset)
-from .estimate import ESTIMATE_CHANNELS, ESTIMATE_FORMAT, SIGMA_CHANNELS, Estimate, height_to_mesh, read_estimate, write_estimate
+from .dataset import (FORMAT, GROUND_TRUTH_CHANNELS, POLARIZER_NOT_CORRECTED, Dataset, check_polarizer_calibration,
+                      dataset_meta, read_dataset, software_versions, write_dataset)
+from .estimate import (ESTIMATE_CHANNELS, ESTIMATE_FORMAT, SIGMA_CHANNELS, Estimate, height_to_mesh, read_estimate,
+                       write_estimate)
 from .evaluation_files import read_metrics, write_evaluation_files
 from .exr import (band_channel, band_channels, pol_layer, polarized_rgb_channels, read_exr, set_exr_threads,
                   write_exr)
@@ -42,6 +43,8 @@ from .masks import read_mask_file
 __all__ = [
     "FORMAT",
     "GROUND_TRUTH_CHANNELS",
+    "POLARIZER_NOT_CORRECTED",
+    "check_polarizer_calibration",
     "ESTIMATE_CHANNELS",
     "ESTIMATE_FORMAT",
     "Dataset",

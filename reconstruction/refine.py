@@ -30,7 +30,11 @@ Priors (``prior="default"``), in units of the noise (the cost is Σ r² with r i
     the curl of the gradient field on every 2 x 2 cell of pixels has standard deviation 0.01
     (times ``1 + |∇z|²``): a surface's normals are a gradient field; the prior carries the
     shape across regions the captures say little about (near normal incidence, where
-    polarization is weak) and fixes the azimuth where the data leave it open.
+    polarization is weak) and fixes the azimuth where the data leave it open;
+``curvature`` (:data:`CURVATURE_SIGMA`)
+    neighbouring pixels' gradients differ with standard deviation 0.05 (times
+    ``(1 + |∇z|²)^1.5``), in a Cauchy loss: smooth where the captures say little, a crease
+    or ridge kept.
 
 Pixels whose fit stays far above the noise (an inter-reflection, a shadow: the model has
 neither) weigh less: each pixel's cost enters through a Cauchy loss of its χ² per value
@@ -51,7 +55,7 @@ import numpy as np
 
 from thinfilm.core.errors import ThinfilmWarning, UserError
 
-__all__ = ["PRIORS", "THICKNESS_SMOOTHNESS_NM", "CURL_SIGMA", "OUTLIER_CHI2", "refine_estimate",
+__all__ = ["PRIORS", "THICKNESS_SMOOTHNESS_NM", "CURL_SIGMA", "CURVATURE_SIGMA", "OUTLIER_CHI2", "refine_estimate",
            "capture_of", "observations_of"]
 
 #: the priors of :func:`refine_estimate`
@@ -62,6 +66,10 @@ THICKNESS_SMOOTHNESS_NM = 2.0
 #: standard deviation of the curl of the surface's gradient on a 2 x 2 cell of pixels, over
 #: ``1 + |∇z|²`` (default prior): the normals of a surface are a gradient field, curl-free
 CURL_SIGMA = 0.01
+#: standard deviation of the difference of neighbouring pixels' surface gradients, over
+#: ``(1 + |∇z|²)^1.5`` (default prior; a Cauchy loss of scale :data:`OUTLIER_CHI2`, so that a
+#: crease costs little more than a bend): carries the surface where the captures say little
+CURVATURE_SIGMA = 0.05
 #: χ² per value above which a pixel's weight falls (Cauchy weights)
 OUTLIER_CHI2 = 9.0
 #: draws of the posterior for the σ of the default prior (a σ's relative error about 1/√(2K))
@@ -176,7 +184,88 @@ def _operators(mask):
     vals = np.concatenate([np.full(2 * m, 0.5), np.full(2 * m, -0.5), np.full(2 * m, -0.5), np.full(2 * m, 0.5)])
     C = sp.csr_matrix((vals, (rows, cols)), shape=(m, 2 * n))
     S = second_differences(mask, idx, n)
-    return C, S, (a, b, c_, d_)
+    ei, ej = [], []
+    for lo, hi in (((slice(None), slice(None, -1)), (slice(None), slice(1, None))),
+                   ((slice(None, -1), slice(None)), (slice(1, None), slice(None)))):
+        e = mask[lo] & mask[hi]
+        ei.append(idx[lo][e])
+        ej.append(idx[hi][e])
+    ei, ej = np.concatenate(ei), np.concatenate(ej)
+    k = ei.size
+    E = sp.csr_matrix((np.concatenate([np.full(k, -1.0), np.ones(k)]), (np.tile(np.arange(k), 2), np.concatenate([ei, ej]))),
+                      shape=(k, n))
+    return _Priors(C, (a, b, c_, d_), S, E, (ei, ej))
+
+
+class _Priors:
+    """The default prior's terms on the unknowns ``z`` (N, 2) (the surface gradient) and ``d``
+    (N,): the curl of the gradient field (Gaussian), the thickness's second differences
+    (Gaussian), and the gradient's differences between neighbours (a Cauchy loss, so that
+    creases and ridges stay sharp), each residual in units of its σ."""
+
+    def __init__(self, C, cells, S, E, edges):
+        self.C, self.cells, self.S, self.E, self.edges = C, cells, S, E, edges
+        self.w_c, self.w_d, self.w_s = 1.0 / CURL_SIGMA, 1.0 / THICKNESS_SMOOTHNESS_NM, 1.0 / CURVATURE_SIGMA
+
+    def curl_weights(self, z):
+        s2 = np.sum(z ** 2, axis=1)
+        a, b, c_, d_ = self.cells
+        return self.w_c / (1.0 + 0.25 * (s2[a] + s2[b] + s2[c_] + s2[d_]))
+
+    def edge_weights(self, z):
+        s2 = np.sum(z ** 2, axis=1)
+        i, j = self.edges
+        return self.w_s / (1.0 + 0.5 * (s2[i] + s2[j])) ** 1.5
+
+    def residuals(self, z, d):
+        """(curl, thickness, smoothness of z_x, smoothness of z_y) residuals."""
+        we = self.edge_weights(z)
+        return (self.curl_weights(z) * (self.C @ z.T.ravel()), self.w_d * (self.S @ d),
+                we * (self.E @ z[:, 0]), we * (self.E @ z[:, 1]))
+
+    def objective(self, z, d):
+        rc, rd, rx, ry = self.residuals(z, d)
+        k = OUTLIER_CHI2
+        return float(np.sum(rc ** 2) + np.sum(rd ** 2) + np.sum(k * np.log1p(rx ** 2 / k))
+                     + np.sum(k * np.log1p(ry ** 2 / k)))
+
+    def system(self, z, d):
+        """The priors' Gauss-Newton matrix (3 N square, IRLS weights for the Cauchy terms) and
+        their gradient ``Jᵀ r`` at ``(z, d)``."""
+        import scipy.sparse as sp
+
+        n = d.size
+        rc, rd, rx, ry = self.residuals(z, d)
+        Cw = (sp.diags(self.curl_weights(z)) @ self.C).tocsr()
+        we = self.edge_weights(z)
+        k = OUTLIER_CHI2
+        blocks = []
+        grads = []
+        for r in (rx, ry):
+            irls = 1.0 / (1.0 + r ** 2 / k)
+            Ew = (sp.diags(we * np.sqrt(irls)) @ self.E).tocsr()
+            blocks.append(Ew.T @ Ew)
+            grads.append(self.E.T @ (we * irls * r))
+        smooth = sp.block_diag(blocks)
+        A = sp.block_diag([Cw.T @ Cw + smooth, self.w_d ** 2 * (self.S.T @ self.S)]).tocsc()
+        g = np.concatenate([Cw.T @ rc + np.concatenate(grads), self.w_d * (self.S.T @ rd)])
+        return A, g
+
+    def draw(self, z, d, rng, count):
+        """``Jᵀ ξ`` of the priors' (IRLS-weighted) rows for ``count`` standard normal draws
+        ``ξ``: (3 N, count), covariance the priors' Gauss-Newton matrix."""
+        n = d.size
+        rc, rd, rx, ry = self.residuals(z, d)
+        k = OUTLIER_CHI2
+        Cw = self.C.T.multiply(self.curl_weights(z)[None, :]).tocsr()          # (2 N, cells)
+        out = np.zeros((3 * n, count))
+        out[:2 * n] = Cw @ rng.standard_normal((self.C.shape[0], count))
+        we = self.edge_weights(z)
+        for c, r in enumerate((rx, ry)):
+            w = we * np.sqrt(1.0 / (1.0 + r ** 2 / k))
+            out[c * n:(c + 1) * n] += self.E.T @ (w[:, None] * rng.standard_normal((w.size, count)))
+        out[2 * n:] = self.w_d * (self.S.T @ rng.standard_normal((self.S.shape[0], count)))
+        return out
 
 
 def refine_estimate(dataset, estimate, prior: str = "default", iterations: int = 8, fit_index=None,
@@ -264,8 +353,7 @@ def refine_estimate(dataset, estimate, prior: str = "default", iterations: int =
     # the start: the estimate's normals and thickness (a height field integrated from them)
     y0 = np.clip(np.nan_to_num(d_img[mask]), 0.0, None)
     offset = 0.0
-    C, S, cells = _operators(mask)
-    D = S  # the thickness prior: second differences
+    priors = _operators(mask)
     if prior == "default":
         from .surface import normals_to_gradients
 
@@ -279,8 +367,6 @@ def refine_estimate(dataset, estimate, prior: str = "default", iterations: int =
         z = None
     sign_ref = normals0[mask][:, :2]
     d = y0.copy()
-    w_d = 1.0 / THICKNESS_SMOOTHNESS_NM
-    w_c = 1.0 / CURL_SIGMA
 
     bar = progress_bar(iterations, "refine", progress)
     lam = 1e-3
@@ -329,13 +415,13 @@ def refine_estimate(dataset, estimate, prior: str = "default", iterations: int =
     def objective(cost, d, z):
         c = float(np.sum(_loss(cost, width)))
         if prior == "default":
-            c += float(np.sum((w_d * (D @ d)) ** 2) + np.sum((_curl_weights(z, cells, w_c) * (C @ z.T.ravel())) ** 2))
+            c += priors.objective(z, d)
         return c
 
     for it in range(iterations):
         cur = objective(cost, d, z)
         history.append(cur)
-        A, rhs, border, h_nn, r_n, _ = _system(prior, H, g, _robust(cost, width), z, d, C, cells, D, w_c, w_d, fit_index)
+        A, rhs, border, h_nn, r_n, _ = _system(prior, H, g, _robust(cost, width), z, d, priors, fit_index)
         accepted = False
         for _ in range(6):
             diag = A.diagonal()
@@ -394,8 +480,8 @@ def refine_estimate(dataset, estimate, prior: str = "default", iterations: int =
     ok[ok] &= np.linalg.cond(Hp[ok]) < 1e14
     if prior == "default":
         rho = _robust(cost, width)
-        A, _, _, _, _, M = _system(prior, H, g, rho, z, d, C, cells, D, w_c, w_d, False)
-        dv, dd = _posterior_samples(A, M, H, rho, C, _curl_weights(z, cells, w_c), D, w_d, SIGMA_SAMPLES)
+        A, _, _, _, _, M = _system(prior, H, g, rho, z, d, priors, False)
+        dv, dd = _posterior_samples(A, M, H, rho, priors, z, d, SIGMA_SAMPLES)
         Jn = normal_jacobian(v)
         ang2 = np.mean(np.sum(np.einsum("nip,knp->kni", Jn, dv) ** 2, axis=2), axis=0)
         sig_n = np.degrees(np.sqrt(ang2 * scale))
@@ -441,6 +527,7 @@ def refine_estimate(dataset, estimate, prior: str = "default", iterations: int =
                       "film_ior_sigma": index_sigma, "noise_model": bool(noise_known),
                       "thickness_smoothness_nm": THICKNESS_SMOOTHNESS_NM if prior == "default" else None,
                       "curl_sigma": CURL_SIGMA if prior == "default" else None,
+                      "curvature_sigma": CURVATURE_SIGMA if prior == "default" else None,
                       "unexplained_pixels": int(np.sum(~(chi2 < max_chi2))), "timings_s": timings}
     info["method"] = f"{estimate.info.get('method') or 'estimate'}+refine"
     return Estimate(normals=normals, thickness_nm=out_d, valid=valid, film_ior=film_ior,
@@ -448,15 +535,7 @@ def refine_estimate(dataset, estimate, prior: str = "default", iterations: int =
                     pixel_size=estimate.pixel_size, info=info, normal_sigma_deg=sn, thickness_sigma_nm=sd)
 
 
-def _curl_weights(z, cells, w_c):
-    """Per cell, the weight of its curl residual: ``w_c`` over ``1 + |∇z|²`` (the mean of the
-    cell's four pixels: steep parts' slopes, and their discretization, grow without bound)."""
-    s2 = np.sum(z ** 2, axis=1)
-    a, b, c_, d_ = cells
-    return w_c / (1.0 + 0.25 * (s2[a] + s2[b] + s2[c_] + s2[d_]))
-
-
-def _system(prior, H, g, rho, z, d, C, cells, D, w_c, w_d, fit_index):
+def _system(prior, H, g, rho, z, d, priors, fit_index):
     """The Gauss-Newton system of a refinement step over every pixel's three unknowns
     (``(z_x, z_y, d)`` with the default prior, ``(v1, v2, d)`` without; all first components,
     then all second, then the thicknesses): the sparse matrix, its right-hand side, the column
@@ -477,10 +556,9 @@ def _system(prior, H, g, rho, z, d, C, cells, D, w_c, w_d, fit_index):
     grad = np.einsum("nki,nk->ni", T, gr[:, :3])
     rhs = -np.concatenate([grad[:, 0], grad[:, 1], grad[:, 2]])
     if prior == "default":
-        W = sp.diags(_curl_weights(z, cells, w_c))
-        Cw = (W @ C).tocsr()
-        A = A + sp.block_diag([Cw.T @ Cw, w_d ** 2 * (D.T @ D)]).tocsc()
-        rhs = rhs - np.concatenate([Cw.T @ (Cw @ z.T.ravel()), w_d ** 2 * (D.T @ (D @ d))])
+        Ap, gp = priors.system(z, d)
+        A = A + Ap
+        rhs = rhs - gp
     border = None
     if fit_index:
         col = np.einsum("nki,nk->ni", T, Hr[:, :3, 3])
@@ -510,12 +588,10 @@ def _apply(prior, step, v, d, z, n):
     return v_t, d_t, None
 
 
-def _posterior_samples(A, T, H, rho, C, curl_w, D, w_d, count: int, seed: int = 0):
+def _posterior_samples(A, T, H, rho, priors, z, d, count: int, seed: int = 0):
     """Draws ``(δv (K, N, 2), δd (K, N))`` of the linearized posterior of the default prior's
     unknowns, covariance ``A⁻¹`` (perturb-and-solve: ``A⁻¹ b`` with ``b`` of covariance ``A``,
-    from the pixels' information ``H`` and the priors' operators), with a fixed seed."""
-    import scipy.sparse as sp
-
+    from the pixels' information ``H`` and the priors' rows), with a fixed seed."""
     n = H.shape[0]
     rng = np.random.default_rng(seed)
     Hr = H[:, :3, :3] * rho[:, None, None] + 1e-12 * np.eye(3)
@@ -523,9 +599,7 @@ def _posterior_samples(A, T, H, rho, C, curl_w, D, w_d, count: int, seed: int = 
     e = np.einsum("nij,knj->kni", L, rng.standard_normal((count, n, 3)))  # Cov = H per pixel
     e = np.einsum("nji,knj->kni", T, e)                                 # in the unknowns
     b = np.concatenate([e[:, :, 0], e[:, :, 1], e[:, :, 2]], axis=1).T  # (3 N, K)
-    Cw = sp.diags(curl_w) @ C
-    b[:2 * n] += Cw.T @ rng.standard_normal((C.shape[0], count))
-    b[2 * n:] += w_d * (D.T @ rng.standard_normal((D.shape[0], count)))
+    b += priors.draw(z, d, rng, count)
     delta = _factor(A).solve(np.ascontiguousarray(b))                   # (3 N, K)
     dz = np.stack([delta[:n].T, delta[n:2 * n].T], axis=2)              # (K, N, 2)
     dv = np.einsum("nij,knj->kni", T[:, :2, :2], dz)

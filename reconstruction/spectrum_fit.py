@@ -75,12 +75,27 @@ shape of ``R``, which a free response and background can mimic. The fit does not
 that: the global term then makes sigma comparable to the thickness. A background and a white
 reference pin the response and recover such films to well under 1 %.
 
-Spectrometer pixels integrate over their width: the model averages ``R`` over each pixel (its
-width taken from the sample spacing), sub-sampled finely enough to resolve the thinnest fringes
-in the thickness range, so thick films near the sampling limit lose contrast in the model as they
-do in the instrument, and aliased thicknesses do not fit. (The instrument's own resolution, if
-wider than a pixel, is not modelled: it lowers the fringe contrast smoothly, which the free
-response absorbs.)
+The instrument. ``R`` in the model is what the spectrometer reads, not the film's point
+reflectance: averaged over a Gaussian spread of the thickness over the light spot (standard
+deviation ``s``), seen through a Gaussian instrument line (full width at half maximum ``w``)
+and integrated over each pixel's width: the observation model is evaluated on a fine uniform
+wavelength grid (resolving the thinnest fringes in range) and a table of thicknesses (0.4 rad
+of phase apart at the shortest wavelength, interpolated as cubic Hermite with the model's own
+derivatives), averaged over the spread along the table and read through a sparse line-shape
+operator. Both lower the fringe contrast, the line width most at short wavelengths for thick
+films, and without them a thick film's washed-out fringes are read as another order or a
+thinner film. ``s`` and ``w`` are given (``thickness_spread_nm``, ``resolution_nm``) or chosen
+by the fit from the grid :data:`SPREADS_NM` × :data:`RESOLUTIONS_NM`: the profile of step 1 is
+computed for every setting; a setting is a reading of a thickness only where it leaves a fringe
+contrast of at least 0.5 and a spread of at most a tenth of the thickness. At the winner the
+thickness is refined at every setting and at half steps around the best one, and the result is
+their evidence-weighted mean (BIC differences divided by the reduced chi-square where that
+exceeds 1), the weighted spread entering sigma. With ``fit_film_ior`` the instrument is not
+fitted (it trades against the index): given values or none.
+
+The runner-up: the best refined candidate a quarter of the spacing between neighbouring orders
+or more from the winner, reported with its chi-square and ΔBIC; its evidence-weighted squared
+distance enters the variance (where the two fit about equally, sigma spans both).
 
 Examples
 --------
@@ -116,6 +131,9 @@ __all__ = [
     "MIN_POINTS",
     "MAX_VALUE",
     "estimated_memory_bytes",
+    "instrument_reflectance",
+    "SPREADS_NM",
+    "RESOLUTIONS_NM",
 ]
 
 BACKGROUND_DEGREE = 1
@@ -133,11 +151,22 @@ DEFAULT_THICKNESS_RANGE_NM = (1.0, 10000.0)
 MIN_POINTS = 10
 """Fewest samples a spectrum may have in the fitted wavelength range."""
 
+SPREADS_NM = (0.0, 25.0, 50.0)
+"""Thickness spreads over the light spot (standard deviations, nm) tried when none is given."""
+
+RESOLUTIONS_NM = (0.0, 5.0, 10.0)
+"""Instrument line widths (full width at half maximum, nm) tried when none is given; 0 is the
+pixel's own width alone."""
+
 _CANDIDATES = 4  # lowest local minima of the profile refined per spectrum ...
 _CANDIDATES_POSITIVE = 1  # ... and lowest among grid thicknesses with a plausible response
 _PRE_ITERATIONS = 3  # Levenberg-Marquardt iterations every start gets before the best are kept
 _COARSE = 64  # wavelengths at which the response's positivity is checked
-_MAX_SUBSAMPLES = 32
+_MAX_FINE = 200_000  # most samples of the fine wavelength grid
+_FWHM = 2.0 * np.sqrt(2.0 * np.log(2.0))  # full width at half maximum of a unit Gaussian
+_MIN_CONTRAST = 0.5  # fringe contrast an instrument setting must leave (see _Problem.allowed)
+_MAX_RELATIVE_SPREAD = 0.1  # largest thickness spread, relative to the thickness
+_SPREAD_NODES = 9  # Gauss-Hermite nodes over the thickness spread (with a fitted index)
 _CAP_FACTOR = 0.75  # response degree <= this × π × fringes (see gain_columns)
 _GAIN_FLOOR = 0.05  # a fitted response must stay above 5 % of its maximum ...
 _GAIN_FLOOR_GRID = -0.25  # ... on the coarse grid, where it may dip a little below zero
@@ -281,6 +310,14 @@ class SpectrumFit:
         Samples fitted.
     fitted : ndarray
         The fitted model spectrum, same samples as the input.
+    thickness_spread_nm, resolution_nm : float
+        The instrument setting of the fit: the thickness spread over the light spot (standard
+        deviation) and the line width (full width at half maximum; 0: the pixel's own width).
+    runner_up_thickness_nm, runner_up_chi2, runner_up_delta_bic : float
+        The best other reading (another interference order or regime, a quarter of an order
+        or more away): its thickness, its reduced chi-square (as ``chi2``) and how much worse
+        its BIC is (NaN where no other candidate survived). A ``runner_up_delta_bic`` of a few
+        units means the two fit about equally; the sigma then covers both.
     """
 
     thickness_nm: float
@@ -295,6 +332,11 @@ class SpectrumFit:
     at_bound: bool
     n_points: int
     fitted: np.ndarray
+    thickness_spread_nm: float = 0.0
+    resolution_nm: float = 0.0
+    runner_up_thickness_nm: float = float("nan")
+    runner_up_chi2: float = float("nan")
+    runner_up_delta_bic: float = float("nan")
 
 
 # ---------------------------------------------------------------------------
@@ -318,6 +360,29 @@ def _pixels(lam, m):
     width = np.diff(edges)
     u = (np.arange(m) + 0.5) / m - 0.5
     return lam[:, None] + width[:, None] * u[None, :], width
+
+
+def _line_operator(lam, width, lam_fine, fwhm):
+    """The reading of each pixel from the fine grid (sparse, (n, n_fine)): the pixel's box
+    (its width) convolved with a Gaussian line of full width ``fwhm`` at half maximum,
+    integrated exactly (differences of the normal CDF); each row sums to 1. A line narrower
+    than the fine step is the box alone."""
+    from scipy.sparse import csr_matrix
+    from scipy.special import ndtr
+
+    h = lam_fine[1] - lam_fine[0]
+    sigma = max(fwhm / _FWHM, 0.25 * h)
+    reach = int(np.ceil((0.5 * np.max(width) + 4.0 * sigma) / h)) + 1
+    centre = np.rint((lam - lam_fine[0]) / h).astype(int)
+    cols = centre[:, None] + np.arange(-reach, reach + 1)[None, :]
+    inside = (cols >= 0) & (cols < lam_fine.size)
+    cols = np.clip(cols, 0, lam_fine.size - 1)
+    x = lam_fine[cols] - lam[:, None]
+    half = 0.5 * width[:, None]
+    w = (ndtr((x + half) / sigma) - ndtr((x - half) / sigma)) * inside
+    w /= w.sum(axis=1, keepdims=True)
+    rows = np.repeat(np.arange(lam.size), cols.shape[1])
+    return csr_matrix((w.ravel(), (rows, cols.ravel())), shape=(lam.size, lam_fine.size))
 
 
 def _qr(A):
@@ -346,7 +411,7 @@ class _Problem:
     """Everything shared by the spectra of one wavelength grid."""
 
     def __init__(self, lam, model, background, reference, d_range, fit_film_ior,
-                 background_degree=BACKGROUND_DEGREE):
+                 background_degree=BACKGROUND_DEGREE, spreads=SPREADS_NM, resolutions=RESOLUTIONS_NM):
         self.lam = lam
         self.n = lam.size
         self.model = model
@@ -354,14 +419,33 @@ class _Problem:
         self.d_lo, self.d_hi = d_range
         self.q_max = float(model.phase_index(lam).max())
 
-        # pixel averaging, fine enough for the thinnest fringes in range
+        # the instrument: every (thickness spread, line width) setting tried
+        self.spreads = tuple(float(v) for v in spreads)
+        self.resolutions = tuple(float(v) for v in resolutions)
+        self.blurs = [(sv, wv) for sv in self.spreads for wv in self.resolutions]
+        self.k_blur = int(len(self.spreads) > 1) + int(len(self.resolutions) > 1)
+        # a fine uniform grid resolving the thinnest fringes in range and every pixel
         _, width = _pixels(lam, 1)
         period = lam * lam / (2.0 * model.phase_index(lam) * self.d_hi)
-        self.m = int(np.clip(np.ceil(12.0 * np.max(width / period)), 1, _MAX_SUBSAMPLES))
-        self.lam_sub = _pixels(lam, self.m)[0].reshape(-1)
-        self.spectrometer = model.spectrometer(self.lam_sub)
+        h = float(min(np.min(width), np.min(period) / 12.0))
+        h = max(h, np.ptp(lam) / _MAX_FINE)
+        pad = 0.5 * max(width[0], width[-1]) + 4.0 * max(self.resolutions) / _FWHM + 2.0 * h
+        self.lam_fine = np.arange(lam[0] - pad, lam[-1] + pad + 0.5 * h, h)
+        self.lam_fine = self.lam_fine[self.lam_fine > 0.5 * lam[0]]
+        self.fine_step = h
+        self.spectrometer = model.spectrometer(self.lam_fine)
+        self._pixel_width = width
+        self._lines = {wv: _line_operator(lam, width, self.lam_fine, wv) for wv in self.resolutions}
+        self._tables = {}
         self.lam_ref = 0.5 * (lam[0] + lam[-1])
         self.n_ref = float(model.indices(np.array([self.lam_ref]))[0][0])
+        # thickness table (films without a fitted index): R and dR/dd on a uniform grid, a
+        # 0.4 radian of phase apart at the shortest wavelength, interpolated (cubic Hermite)
+        self.t_step = 0.4 * lam[0] / (4.0 * np.pi * self.q_max)
+        s_max = max(self.spreads)
+        t0 = max(self.d_lo - 4.5 * s_max - 2.0 * self.t_step, 0.0)
+        count = int(np.ceil((self.d_hi + 4.5 * s_max + 2.0 * self.t_step - t0) / self.t_step)) + 1
+        self.t_d = t0 + self.t_step * np.arange(count)
 
         # linear bases: background columns first, then the response's
         phi = None if background is not None else _legendre_basis(lam, background_degree)
@@ -388,6 +472,26 @@ class _Problem:
             self.phi_phi = phi.T @ phi
             self.phi_gain = phi[:, :, None] * gain[:, None, :]  # (n, p_b, G)
 
+    def contrast(self, d, blur):
+        """The fringe contrast left by instrument setting ``blur`` at thicknesses ``d``, at the
+        middle of the range: ``exp(−σ_φ²/2)`` for the spread of the round-trip phase
+        ``σ_φ = 4π q / λ · sqrt(s² + (d σ_λ / λ)²)`` (``s`` the thickness spread, ``σ_λ`` the
+        line's standard deviation)."""
+        spread, width = np.asarray(self.blurs, dtype=np.float64)[np.asarray(blur)].T
+        lam = self.lam_ref
+        q = float(self.model.phase_index(np.array([lam]))[0])
+        sig = np.sqrt(spread ** 2 + (np.asarray(d) * width / _FWHM / lam) ** 2)
+        return np.exp(-0.5 * (4.0 * np.pi * q * sig / lam) ** 2)
+
+    def allowed(self, d, blur):
+        """Whether instrument setting ``blur`` is a reading of thicknesses ``d``: it leaves a
+        fringe contrast of at least :data:`_MIN_CONTRAST` (:meth:`contrast`), and its spread
+        is at most :data:`_MAX_RELATIVE_SPREAD` of the thickness (a wider spread is a wedge,
+        not a film of that thickness, and trades against the thickness of a thin film)."""
+        spread = np.asarray(self.blurs, dtype=np.float64)[np.asarray(blur), 0]
+        d = np.asarray(d, dtype=np.float64)
+        return (self.contrast(d, blur) >= _MIN_CONTRAST) & (spread <= _MAX_RELATIVE_SPREAD * d)
+
     def gain_columns(self, d):
         """Response columns allowed at thicknesses ``d``: all of them with a reference, else
         ``degree + 1`` with the degree capped at ``0.75 π N`` for ``N`` fringes."""
@@ -405,20 +509,99 @@ class _Problem:
 
     def bic(self, rss, g, scale2):
         """BIC of fits with ``g`` response columns (+ the background's and the nonlinear ones)."""
-        p = self.p_b + g + self.k
+        p = self.p_b + g + self.k + self.k_blur
         return self.n * np.log(np.maximum(rss, 1e-14 * scale2) / self.n) + p * np.log(self.n)
 
-    def reflectance(self, d, delta=None, derivatives=False):
-        """R averaged over each pixel (K, n) for thicknesses ``d`` (K,), index offsets ``delta``
-        (K,); with ``derivatives`` also its derivatives (K, n, 1 or 2) by ``d`` (and ``delta``)."""
-        d = np.asarray(d, dtype=np.float64)
+    def setting_index(self, setting):
+        """The index in :attr:`blurs` of instrument setting ``(spread, fwhm)``, added if new
+        (its table is made when first used)."""
+        setting = (float(setting[0]), float(setting[1]))
+        if setting not in self.blurs:
+            self.blurs.append(setting)
+        return self.blurs.index(setting)
+
+    def _fine_table(self):
+        if "fine" not in self._tables:
+            R = np.empty((self.t_d.size, self.lam_fine.size))
+            dR = np.empty_like(R)
+            for start in range(0, self.t_d.size, 256):
+                sl = slice(start, start + 256)
+                R[sl], jac = self.spectrometer.reflectance(self.t_d[sl], derivatives=True)
+                dR[sl] = jac[:, :, 0]
+            self._tables["fine"] = (R, dR)
+        return self._tables["fine"]
+
+    def table(self, blur):
+        """The thickness table of instrument setting ``blur``: (R, dR/dd), each (T, n), at
+        thicknesses :attr:`t_d`: the fine table averaged over the thickness spread (a Gaussian
+        over the table's rows), then seen through the line shape and the pixel."""
+        if blur not in self._tables:
+            from scipy.ndimage import convolve1d
+
+            R, dR = self._fine_table()
+            spread, width = self.blurs[blur]
+            if ("line", width) not in self._tables:
+                if width not in self._lines:
+                    self._lines[width] = _line_operator(self.lam, self._pixel_width, self.lam_fine, width)
+                line = self._lines[width]
+                self._tables["line", width] = (np.asarray(line @ R.T).T.copy(), np.asarray(line @ dR.T).T.copy())
+            R, dR = self._tables["line", width]
+            if spread > 0.0:
+                reach = int(np.ceil(4.0 * spread / self.t_step))
+                off = np.arange(-reach, reach + 1)
+                w = np.exp(-0.5 * (off * self.t_step / spread) ** 2)
+                w /= w.sum()
+                R = convolve1d(R, w, axis=0, mode="nearest")
+                dR = convolve1d(dR, w, axis=0, mode="nearest")
+            self._tables[blur] = (R, dR)
+        return self._tables[blur]
+
+    def reflectance(self, d, delta=None, derivatives=False, blur=0):
+        """R as the instrument sees it (K, n) for thicknesses ``d`` (K,), index offsets
+        ``delta`` (K,), instrument setting ``blur`` (an index into :attr:`blurs`); with
+        ``derivatives`` also its derivatives (K, n, 1 or 2) by ``d`` (and ``delta``).
+
+        Without index offsets from the thickness table (:meth:`table`, cubic Hermite in
+        ``d``); with them the observation model is evaluated at the thickness spread's
+        Gauss-Hermite nodes and seen through the line shape."""
+        d = np.asarray(d, dtype=np.float64).ravel()
+        if delta is None:
+            T, dT = self.table(blur)
+            t = np.clip((d - self.t_d[0]) / self.t_step, 0.0, self.t_d.size - 1.0)
+            i = np.minimum(np.floor(t).astype(int), self.t_d.size - 2)
+            u = (t - i)[:, None]
+            h = self.t_step
+            a, b, da, db = T[i], T[i + 1], h * dT[i], h * dT[i + 1]
+            u2, u3 = u * u, u * u * u
+            R = (2 * u3 - 3 * u2 + 1) * a + (u3 - 2 * u2 + u) * da + (3 * u2 - 2 * u3) * b + (u3 - u2) * db
+            if not derivatives:
+                return R
+            D = ((6 * u2 - 6 * u) * a + (3 * u2 - 4 * u + 1) * da + (6 * u - 6 * u2) * b + (3 * u2 - 2 * u) * db) / h
+            return R, D[:, :, None]
+        spread, width = self.blurs[blur]
+        if width not in self._lines:
+            self._lines[width] = _line_operator(self.lam, self._pixel_width, self.lam_fine, width)
+        line = self._lines[width]
+        nodes, weights = (np.polynomial.hermite_e.hermegauss(_SPREAD_NODES) if spread > 0.0
+                          else (np.zeros(1), np.ones(1)))
+        weights = weights / weights.sum()
+        delta = np.broadcast_to(np.asarray(delta, dtype=np.float64).ravel(), d.shape)
+        R = 0.0
+        dR = 0.0
+        for x, w in zip(nodes, weights):
+            out = self.spectrometer.reflectance(np.maximum(d + spread * x, 0.0), delta, derivatives)
+            if derivatives:
+                R = R + w * out[0]
+                dR = dR + w * out[1]
+            else:
+                R = R + w * out
         K = d.size
-        out = self.spectrometer.reflectance(d, delta, derivatives)
+        R = np.asarray(line @ R.T).T
         if not derivatives:
-            return out.reshape(K, self.n, self.m).mean(axis=2)
-        R, dR = out
-        return (R.reshape(K, self.n, self.m).mean(axis=2),
-                dR.reshape(K, self.n, self.m, -1).mean(axis=2))
+            return R
+        q = dR.shape[-1]
+        dR = np.asarray(line @ np.moveaxis(dR, 1, 0).reshape(self.lam_fine.size, K * q))
+        return R, np.moveaxis(dR.reshape(self.n, K, q), 1, 0)
 
     def design(self, R, g=None, derivative=False):
         """Design matrices (K, n, p_b + g) for reflectances R (K, n), ``g`` response columns
@@ -505,8 +688,20 @@ def _grid(problem):
     return np.linspace(problem.d_lo, problem.d_hi, max(count, 16))
 
 
-def _profile(problem, Y, grid, chunk=16):
-    """Profile of every grid thickness for every spectrum, each thickness polished by one
+def _profile(problem, Y, grid):
+    """:func:`_profile_one` for every instrument setting: ``(bic, d, plausible, bic_any,
+    blur)``, the first three and ``blur`` (K, S) at each grid thickness of the setting with the
+    lowest ``bic`` there, ``blur`` that setting's index, and ``bic_any`` (B K, S) of every
+    setting (B settings, grid thicknesses repeated per setting)."""
+    parts = [_profile_one(problem, Y, grid, b) for b in range(len(problem.blurs))]
+    bic = np.stack([p[0] for p in parts])
+    blur = np.argmin(bic, axis=0)
+    pick = [np.take_along_axis(np.stack([p[i] for p in parts]), blur[None], axis=0)[0] for i in range(3)]
+    return pick[0], pick[1], pick[2], np.concatenate([p[3] for p in parts]), blur
+
+
+def _profile_one(problem, Y, grid, blur=0, chunk=16):
+    """Profile of every grid thickness for every spectrum (instrument setting ``blur``), each thickness polished by one
     Gauss-Newton step of the variable-projection problem (so that a grid point a fraction of
     a fringe off the truth still ranks near the top, however high the signal-to-noise ratio).
 
@@ -530,7 +725,7 @@ def _profile(problem, Y, grid, chunk=16):
     for start in range(0, K, chunk):
         d = grid[start:start + chunk]
         g = problem.gain_columns(d)
-        R, dR = problem.reflectance(d, derivatives=True)
+        R, dR = problem.reflectance(d, derivatives=True, blur=blur)
         A = problem.design(R)
         dA = problem.design(dR[:, :, 0], derivative=True)
         P = A.shape[2]
@@ -558,6 +753,10 @@ def _profile(problem, Y, grid, chunk=16):
         step = np.where(curved, np.clip(Jtr / np.where(curved, JtJ, 1.0), -h, h), 0.0)
         pred = np.maximum(cost - 2.0 * step * Jtr + step * step * JtJ, 0.0)
         sl = slice(start, start + d.size)
+        # a setting that washes the fringes out is not a reading of this thickness
+        washed = ~problem.allowed(d, blur)[:, None]
+        any_out[sl] = np.where(washed, np.inf, any_out[sl])
+        pred = np.where(washed, np.inf, pred)
         bic_out[sl] = problem.bic(pred, g[:, None], y2[None, :])
         d_out[sl] = np.clip(d[:, None] + step, problem.d_lo, problem.d_hi)
         pos_out[sl] = problem.plausible(coef, y_max, _GAIN_FLOOR_GRID)
@@ -578,14 +777,26 @@ def _local_minima(values, count):
 
 
 def _candidates(profile):
-    """Start thicknesses (S, M): the lowest local minima of the profile, and the lowest among
-    those with a plausible response (a grid point slightly off the truth can need a response
-    that dips below zero, and a false solution can be lower still)."""
+    """Start thicknesses and instrument settings (S, M) each: the lowest local minima of the
+    profile, and the lowest among those with a plausible response (a grid point slightly off
+    the truth can need a response that dips below zero, and a false solution can be lower
+    still)."""
     bic, d, plausible = profile[:3]
+    blur = profile[4]
     raw = _local_minima(bic, _CANDIDATES)
     pos = _local_minima(np.where(plausible, bic, np.inf), _CANDIDATES_POSITIVE)
     cols = np.arange(bic.shape[1])[:, None]
-    return np.concatenate([d[raw, cols], d[pos, cols]], axis=1)
+    at = np.concatenate([raw, pos], axis=1)
+    return d[at, cols], blur[at, cols]
+
+
+def _groups(*keys):
+    """``(values, rows)`` for each distinct combination of the per-row integer ``keys``."""
+    stacked = np.stack([np.asarray(k, dtype=int) for k in keys], axis=1)
+    values, inverse = np.unique(stacked, axis=0, return_inverse=True)
+    inverse = inverse.ravel()
+    for j, v in enumerate(values):
+        yield tuple(int(x) for x in v), np.flatnonzero(inverse == j)
 
 
 # ---------------------------------------------------------------------------
@@ -608,14 +819,14 @@ class _State:
     The linear coefficients come from the normal equations, assembled from the bases without
     forming the (N, n, p) design matrices; residuals are computed explicitly."""
 
-    def __init__(self, problem, Y, theta, g, jacobian=True):
+    def __init__(self, problem, Y, theta, g, jacobian=True, blur=0):
         self.problem, self.g = problem, g
         self.theta = theta
         d, delta = self.split(theta)
         if jacobian:
-            self.R, self.dR = problem.reflectance(d, delta, derivatives=True)
+            self.R, self.dR = problem.reflectance(d, delta, derivatives=True, blur=blur)
         else:
-            self.R = problem.reflectance(d, delta)
+            self.R = problem.reflectance(d, delta, blur=blur)
         self.gram = problem.gram(self.R, g)
         self.coef = _normal_solve(self.gram, problem.at(self.R, g, Y[:, :, None]))[:, :, 0]
         self.fitted = problem.a(self.R, g, self.coef[:, :, None])[:, :, 0]
@@ -648,7 +859,7 @@ def _clip(problem, theta):
     return theta
 
 
-def _refine_group(problem, Y, theta, g, iterations=30, freeze_index=False):
+def _refine_group(problem, Y, theta, g, iterations=30, freeze_index=False, blur=0):
     """Levenberg-Marquardt (:func:`thinfilm.reconstruction.lm.levenberg_marquardt`) for N
     independent problems with ``g`` response columns; returns ``(theta, cost, plausible)``.
 
@@ -667,7 +878,7 @@ def _refine_group(problem, Y, theta, g, iterations=30, freeze_index=False):
         return np.concatenate([x, fixed[idx]], axis=1) if free < k else x
 
     def normal_equations(x, idx):
-        st = _State(problem, Y[idx], full(x, idx), g)
+        st = _State(problem, Y[idx], full(x, idx), g, blur=blur)
         return st.JtJ[:, :free, :free], st.Jtr[:, :free], st.cost, st.plausible
 
     def project(x):
@@ -697,16 +908,15 @@ def _negated(terms):
     return H, -g, cost, aux
 
 
-def _refine(problem, Y, theta, g, freeze_index=False, iterations=30):
-    """Refine N problems (rows of Y, theta) with their own response column counts ``g`` (N,);
-    returns (theta, cost, plausible)."""
+def _refine(problem, Y, theta, g, blur, freeze_index=False, iterations=30):
+    """Refine N problems (rows of Y, theta) with their own response column counts ``g`` (N,)
+    and instrument settings ``blur`` (N,); returns (theta, cost, plausible)."""
     theta_out = theta.copy()
     cost = np.empty(theta.shape[0])
     plausible = np.empty(theta.shape[0], dtype=bool)
-    for gv in np.unique(g):
-        sel = np.flatnonzero(g == gv)
+    for (gv, bv), sel in _groups(g, blur):
         theta_out[sel], cost[sel], plausible[sel] = _refine_group(
-            problem, Y[sel], theta[sel].copy(), int(gv), iterations, freeze_index)
+            problem, Y[sel], theta[sel].copy(), gv, iterations, freeze_index, bv)
     return theta_out, cost, plausible
 
 
@@ -736,7 +946,7 @@ def _covariance(state, n_params):
     return bread @ meat @ bread, rho
 
 
-def _covariances(problem, Y, theta, g):
+def _covariances(problem, Y, theta, g, blur):
     """Covariance (N, k, k), fitted spectra, residual cost and residual lag-1 autocorrelation at
     fixed theta, ``g`` (N,) response columns per problem."""
     N = theta.shape[0]
@@ -744,10 +954,9 @@ def _covariances(problem, Y, theta, g):
     fitted = np.empty(Y.shape)
     cost = np.empty(N)
     rho = np.empty(N)
-    for gv in np.unique(g):
-        sel = np.flatnonzero(g == gv)
-        st = _State(problem, Y[sel], theta[sel].copy(), int(gv))
-        cov[sel], rho[sel] = _covariance(st, problem.p_b + int(gv) + problem.k)
+    for (gv, bv), sel in _groups(g, blur):
+        st = _State(problem, Y[sel], theta[sel].copy(), gv, blur=bv)
+        cov[sel], rho[sel] = _covariance(st, problem.p_b + gv + problem.k + problem.k_blur)
         fitted[sel], cost[sel] = st.fitted, st.cost
     return cov, fitted, cost, rho
 
@@ -771,16 +980,15 @@ def _posterior_spread(grid, bic_grid, theta, bic_fit, rho):
     return (w * dev2).sum(axis=0) / (1.0 + w.sum(axis=0))
 
 
-def _bic_at(problem, Y, theta, g, scale2):
-    """BIC (N,) of fits at fixed theta with ``g`` (N,) response columns."""
+def _bic_at(problem, Y, theta, g, scale2, blur):
+    """BIC (N,) of fits at fixed theta with ``g`` (N,) response columns, settings ``blur``."""
     cost = np.empty(theta.shape[0])
-    for gv in np.unique(g):
-        sel = np.flatnonzero(g == gv)
-        cost[sel] = _State(problem, Y[sel], theta[sel].copy(), int(gv), jacobian=False).cost
+    for (gv, bv), sel in _groups(g, blur):
+        cost[sel] = _State(problem, Y[sel], theta[sel].copy(), gv, jacobian=False, blur=bv).cost
     return problem.bic(cost, g, scale2)
 
 
-def _index_valley(problem, Y, theta, g, rho, scale2, count=25, span=0.15):
+def _index_valley(problem, Y, theta, g, rho, scale2, blur, count=25, span=0.15):
     """Film index and thickness along the valley of equal optical thickness.
 
     The fringes fix the optical thickness ``n2 d`` far better than ``n2`` and ``d`` apart (the
@@ -804,18 +1012,19 @@ def _index_valley(problem, Y, theta, g, rho, scale2, count=25, span=0.15):
     th = _clip(problem, th)
     gg = np.repeat(g, count)
     Yv = np.repeat(Y, count, axis=0)
-    th, cost, _ = _refine(problem, Yv, th, gg, freeze_index=True)
+    bb = np.repeat(blur, count)
+    th, cost, _ = _refine(problem, Yv, th, gg, bb, freeze_index=True)
     bic_v = problem.bic(cost, gg, np.repeat(scale2, count)).reshape(S, count)
     th = th.reshape(S, count, 2)
-    bic_fit = _bic_at(problem, Y, theta, g, scale2)
+    bic_fit = _bic_at(problem, Y, theta, g, scale2, blur)
     best = np.argmin(bic_v, axis=1)
     moved = bic_v[np.arange(S), best] < bic_fit - 1e-9
     theta = theta.copy()
     if np.any(moved):
         rows = np.flatnonzero(moved)
         start = th[rows, best[rows]]
-        theta[rows] = _refine(problem, Y[rows], start, g[rows])[0]
-        bic_fit[rows] = _bic_at(problem, Y[rows], theta[rows], g[rows], scale2[rows])
+        theta[rows] = _refine(problem, Y[rows], start, g[rows], blur[rows])[0]
+        bic_fit[rows] = _bic_at(problem, Y[rows], theta[rows], g[rows], scale2[rows], blur[rows])
     shrink = (1.0 - rho) / (1.0 + rho)
     logw = np.minimum(-0.5 * (bic_v - bic_fit[:, None]) * shrink[:, None], 50.0)
     w = np.exp(logw)
@@ -825,11 +1034,14 @@ def _index_valley(problem, Y, theta, g, rho, scale2, count=25, span=0.15):
     return theta, var
 
 
-def _best_gain_columns(problem, Y, theta, lo, hi):
+def _best_gain_columns(problem, Y, theta, lo, hi, blur):
     """Per problem, the number of response columns within ``[lo, hi]`` (arrays or numbers)
-    with the lowest BIC at fixed theta."""
+    with the lowest BIC at fixed theta and instrument settings ``blur``."""
     delta = theta[:, 1] if theta.shape[1] > 1 else None
-    Q, _ = _qr(problem.design(problem.reflectance(theta[:, 0], delta)))
+    R = np.empty(Y.shape)
+    for (bv,), sel in _groups(blur):
+        R[sel] = problem.reflectance(theta[sel, 0], None if delta is None else delta[sel], blur=bv)
+    Q, _ = _qr(problem.design(R))
     proj = np.einsum("nip,ni->np", Q, Y)
     y2 = np.einsum("ni,ni->n", Y, Y)
     explained = np.cumsum(proj * proj, axis=1)
@@ -839,6 +1051,71 @@ def _best_gain_columns(problem, Y, theta, lo, hi):
     hi = np.broadcast_to(hi, theta.shape[:1])[:, None]
     bic[(options[None, :] < lo) | (options[None, :] > hi)] = np.inf
     return options[np.argmin(bic, axis=1)]
+
+
+def _over_settings(problem, Y, theta, g, blur, scale2):
+    """The thickness averaged over the instrument settings (Bayesian model averaging).
+
+    The settings are a grid; the instrument lies between its points, and the thickness moves
+    a little with the setting. Each spectrum's thickness is refined at every setting from the
+    fit, and then at the settings half a grid step from its best one along each axis (the
+    grid refined where it matters); each is weighted by its evidence ``exp(−ΔBIC/2)``,
+    ``ΔBIC`` divided by the fit's reduced chi-square against its own point-to-point noise
+    where that exceeds 1 (a setting that misses the instrument leaves a misfit, which widens
+    the weights instead of singling one point out). Returns the weighted mean thickness and
+    the weighted variance about it."""
+    S, B = theta.shape[0], len(problem.blurs)
+    rows = np.repeat(np.arange(S), B)
+    bb = np.tile(np.arange(B), S)
+    ok = problem.allowed(np.repeat(theta[:, 0], B), bb)
+    rows, bb = rows[ok], bb[ok]
+    th, cost, _ = _refine(problem, Y[rows], theta[rows].copy(), g[rows], bb, iterations=4)
+    bic = problem.bic(cost, g[rows], scale2[rows])
+
+    # half steps around each spectrum's best setting
+    best_b = np.zeros(S, dtype=int)
+    lowest = np.full(S, np.inf)
+    for r, bv, value in zip(rows, bb, bic):
+        if value < lowest[r]:
+            lowest[r], best_b[r] = value, bv
+    extra_rows, extra_b = [], []
+    for axis, values in ((0, problem.spreads), (1, problem.resolutions)):
+        if len(values) < 2:
+            continue
+        half = 0.5 * float(np.min(np.diff(sorted(values))))
+        for r in range(S):
+            here = list(problem.blurs[best_b[r]])
+            for sign in (-1.0, 1.0):
+                v = here[axis] + sign * half
+                if min(values) <= v <= max(values):
+                    setting = tuple(here[:axis] + [v] + here[axis + 1:])
+                    extra_rows.append(r)
+                    extra_b.append(problem.setting_index(setting))
+    if extra_rows:
+        er, eb = np.asarray(extra_rows), np.asarray(extra_b)
+        keep = problem.allowed(theta[er, 0], eb)
+        er, eb = er[keep], eb[keep]
+        th2, cost2, _ = _refine(problem, Y[er], theta[er].copy(), g[er], eb, iterations=4)
+        rows = np.concatenate([rows, er])
+        th = np.concatenate([th, th2])
+        cost = np.concatenate([cost, cost2])
+        bic = np.concatenate([bic, problem.bic(cost2, g[er], scale2[er])])
+
+    n = problem.n
+    noise2 = np.maximum(_noise_sigma(Y) ** 2, 1e-300)
+    best = np.full(S, np.inf)
+    np.minimum.at(best, rows, bic)
+    cmin = np.full(S, np.inf)
+    np.minimum.at(cmin, rows, cost)
+    chi2 = cmin / max(n - problem.p_b - int(np.max(g)) - 1, 1) / noise2
+    temper = np.maximum(chi2, 1.0)
+    w = np.exp(-0.5 * (bic - best[rows]) / temper[rows])
+    wsum = np.bincount(rows, w, S)
+    mean = np.bincount(rows, w * th[:, 0], S) / wsum
+    var = np.bincount(rows, w * (th[:, 0] - mean[rows]) ** 2, S) / wsum
+    theta = theta.copy()
+    theta[:, 0] = np.clip(mean, problem.d_lo, problem.d_hi)
+    return theta, var
 
 
 def _noise_sigma(Y):
@@ -883,14 +1160,16 @@ def _fit_problem(problem, Yfit):
     """Steps 1-3 of the module docstring for the spectra ``Yfit`` (S, n) of one problem.
 
     Returns a dict of per-spectrum arrays: ``theta`` (S, k), ``var`` (S, k) variances,
-    ``cost``, ``fitted``, ``g`` response columns and ``p_lin`` linear parameters."""
+    ``cost``, ``fitted``, ``g`` response columns, ``p_lin`` linear parameters, ``blur`` the
+    instrument setting, and the runner-up reading (``runner_up`` thickness, ``runner_up_cost``,
+    ``runner_up_dbic``; NaN where every other candidate is the same reading)."""
     S, k = Yfit.shape[0], problem.k
     scale2 = np.einsum("sn,sn->s", Yfit, Yfit)
 
-    # 1. every order: the profile over the thickness grid
+    # 1. every order and every instrument setting: the profile over the thickness grid
     grid = _grid(problem)
     profile = _profile(problem, Yfit, grid)
-    d0 = _candidates(profile)
+    d0, b0 = _candidates(profile)
     M = d0.shape[1]
 
     # 2. refine every candidate with the response allowed there; keep the best (a plausible
@@ -899,13 +1178,16 @@ def _fit_problem(problem, Yfit):
     # the best two per spectrum, and the best plausible one, are then refined to the end)
     dup = np.zeros((S, M), dtype=bool)
     for j in range(1, M):
-        dup[:, j] = np.any(np.isclose(d0[:, :j], d0[:, j:j + 1], rtol=0.0, atol=1e-9), axis=1)
+        dup[:, j] = np.any(np.isclose(d0[:, :j], d0[:, j:j + 1], rtol=0.0, atol=1e-9)
+                           & (b0[:, :j] == b0[:, j:j + 1]), axis=1)
     rows = np.flatnonzero(~dup.reshape(-1))
     theta0 = np.zeros((rows.size, k))
     theta0[:, 0] = d0.reshape(-1)[rows]
+    blur_flat = b0.reshape(-1)[rows]
     g_flat = problem.gain_columns(theta0[:, 0])
     spectrum = rows // M
-    theta_r, cost_r, plausible_r = _refine(problem, Yfit[spectrum], theta0, g_flat, iterations=_PRE_ITERATIONS)
+    theta_r, cost_r, plausible_r = _refine(problem, Yfit[spectrum], theta0, g_flat, blur_flat,
+                                           iterations=_PRE_ITERATIONS)
     bic = np.full(S * M, np.inf)
     bic[rows] = problem.bic(cost_r, g_flat, scale2[spectrum])
     plausible = np.zeros(S * M, dtype=bool)
@@ -913,12 +1195,12 @@ def _fit_problem(problem, Yfit):
     bic, plausible = bic.reshape(S, M), plausible.reshape(S, M)
     order = np.argsort(bic, axis=1)
     keep = np.zeros((S, M), dtype=bool)
-    np.put_along_axis(keep, order[:, :2], True, axis=1)
+    np.put_along_axis(keep, order[:, :3], True, axis=1)
     np.put_along_axis(keep, np.argmin(np.where(plausible, bic, np.inf), axis=1)[:, None], True, axis=1)
     keep &= np.isfinite(bic)
     final = np.flatnonzero(keep.reshape(-1))
     at = np.searchsorted(rows, final)
-    theta_f, cost_f, plausible_f = _refine(problem, Yfit[final // M], theta_r[at], g_flat[at])
+    theta_f, cost_f, plausible_f = _refine(problem, Yfit[final // M], theta_r[at], g_flat[at], blur_flat[at])
     bic = np.full(S * M, np.inf)
     bic[final] = problem.bic(cost_f, g_flat[at], scale2[final // M])
     plausible = np.zeros(S * M, dtype=bool)
@@ -926,31 +1208,60 @@ def _fit_problem(problem, Yfit):
     best = _choose(bic.reshape(S, M), plausible.reshape(S, M)) + np.arange(S) * M
     where = np.searchsorted(final, best)  # the winners among the refined ones
     theta, g_best, Yb, plausible = theta_f[where], g_flat[at][where], Yfit, plausible_f[where]
+    blur = blur_flat[at][where]
+    bic_best = bic[best]
+
+    # the runner-up: the best refined candidate that is another reading (a quarter of the
+    # spacing between neighbouring orders away, or more)
+    apart = 0.25 * problem.lam[0] / (2.0 * problem.q_max)
+    d_all = np.full(S * M, np.nan)
+    d_all[final] = theta_f[:, 0]
+    cost_all = np.full(S * M, np.nan)
+    cost_all[final] = cost_f
+    other = np.where(np.abs(d_all.reshape(S, M) - theta[:, :1]) > apart, bic.reshape(S, M), np.inf)
+    second = np.argmin(other, axis=1)
+    has = np.isfinite(other[np.arange(S), second])
+    pick = second + np.arange(S) * M
+    runner_up = np.where(has, d_all[pick], np.nan)
+    runner_up_cost = np.where(has, cost_all[pick], np.nan)
+    runner_up_dbic = np.where(has, bic[pick] - bic_best, np.nan)
+
     if problem.nested:
-        g_low = _best_gain_columns(problem, Yb, theta, 1, problem.gain_columns(theta[:, 0]))
+        g_low = _best_gain_columns(problem, Yb, theta, 1, problem.gain_columns(theta[:, 0]), blur)
         redo = np.flatnonzero(g_low != g_best)
         if redo.size:
-            th2, cost2, pos2 = _refine(problem, Yb[redo], theta[redo], g_low[redo])
+            th2, cost2, pos2 = _refine(problem, Yb[redo], theta[redo], g_low[redo], blur[redo])
             keep = pos2 | ~plausible[redo]
             theta[redo[keep]], g_best[redo[keep]] = th2[keep], g_low[redo[keep]]
 
     # 3. uncertainty at the winners: the larger of the local (Jacobian) variances with the
     #    capped response and with the response the data ask for (uncapped), plus the spread of
-    #    the thickness's evidence over the grid (all responses)
+    #    the thickness's evidence over the grid (all responses, all instrument settings) and
+    #    over the runner-up
     g_free = g_best
     if problem.nested:
-        g_free = _best_gain_columns(problem, Yb, theta, g_best, GAIN_DEGREE_MAX + 1)
+        g_free = _best_gain_columns(problem, Yb, theta, g_best, GAIN_DEGREE_MAX + 1, blur)
     var_valley = 0.0
     if k > 1:
-        rho = _covariances(problem, Yb, theta, g_best)[3]
-        theta, var_valley = _index_valley(problem, Yb, theta, g_best, rho, scale2)
-    cov, fitted, cost, _ = _covariances(problem, Yb, theta, g_best)
-    cov_free, _, cost_free, rho_free = _covariances(problem, Yb, theta, g_free)
+        rho = _covariances(problem, Yb, theta, g_best, blur)[3]
+        theta, var_valley = _index_valley(problem, Yb, theta, g_best, rho, scale2, blur)
+    var_blur = 0.0
+    if k == 1 and len(problem.blurs) > 1:
+        theta, var_blur = _over_settings(problem, Yb, theta, g_best, blur, scale2)
+    cov, fitted, cost, _ = _covariances(problem, Yb, theta, g_best, blur)
+    cov_free, _, cost_free, rho_free = _covariances(problem, Yb, theta, g_free, blur)
     var = np.maximum(np.einsum("skk->sk", cov), np.einsum("skk->sk", cov_free)) + var_valley
+    var[:, 0] += var_blur
     bic_free = problem.bic(cost_free, g_free, scale2)
-    var[:, 0] += _posterior_spread(grid, profile[3], theta, bic_free, rho_free)
+    grid_all = np.tile(grid, profile[3].shape[0] // grid.size)
+    spread = _posterior_spread(grid_all, profile[3], theta, bic_free, rho_free)
+    shrink = (1.0 - rho_free) / (1.0 + rho_free)
+    w = np.where(has, np.exp(np.minimum(-0.5 * np.nan_to_num(runner_up_dbic, nan=np.inf) * shrink, 50.0)), 0.0)
+    ambiguity = w / (1.0 + w) * np.nan_to_num(runner_up - theta[:, 0]) ** 2
+    var[:, 0] += np.maximum(spread, ambiguity)
     return {"problem": problem, "theta": theta, "var": var, "cost": cost, "fitted": fitted,
-            "g": g_best, "p_lin": problem.p_b + g_best}
+            "g": g_best, "p_lin": problem.p_b + g_best, "blur": blur, "runner_up": runner_up,
+            "runner_up_cost": runner_up_cost, "runner_up_dbic": runner_up_dbic}
 
 
 #: the largest magnitude of a spectrum value (any units): beyond it squares overflow
@@ -959,27 +1270,53 @@ MAX_VALUE = 1e100
 
 def estimated_memory_bytes(wavelengths_nm, model, thickness_range_nm=None, spectra=1) -> int:
     """About how many bytes :func:`fit_spectra` needs at its peak for ``spectra`` spectra on
-    the strictly increasing ``wavelengths_nm``: the instrument's weights over the sub-sampled
-    wavelengths (a dense square matrix, so the need grows with the square of the samples), a
-    chunk of the thickness grid's reflectances and design matrices, and the per-spectrum
-    profiles. Computed from the sizes alone, before anything is allocated."""
+    the strictly increasing ``wavelengths_nm``: the thickness tables (on the fine wavelength
+    grid, and at the samples for every instrument setting), a chunk of the thickness grid's
+    design matrices, and the per-spectrum profiles. Computed from the sizes alone, before
+    anything is allocated."""
     lam = np.asarray(wavelengths_nm, dtype=np.float64)
     n = lam.size
     lo, hi = _thickness_range(lam, model, thickness_range_nm)
     q = model.phase_index(lam)
     _, width = _pixels(lam, 1)
-    m = int(np.clip(np.ceil(12.0 * np.max(width / (lam * lam / (2.0 * q * hi)))), 1, _MAX_SUBSAMPLES))
-    K = max(int(np.ceil((hi - lo) / (lam[0] / (8.0 * float(q.max()))))) + 1, 16)
+    h = max(min(float(np.min(width)), float(np.min(lam * lam / (2.0 * q * hi))) / 12.0), np.ptp(lam) / _MAX_FINE)
+    fine = np.ptp(lam) / h + 8.0 * max(RESOLUTIONS_NM) / _FWHM / h
+    q_max = float(q.max())
+    T = (hi - lo + 9.0 * max(SPREADS_NM)) / (0.4 * lam[0] / (4.0 * np.pi * q_max)) + 4
+    B = (2 * len(SPREADS_NM) - 1) * (2 * len(RESOLUTIONS_NM) - 1)  # the grid and its half steps
+    K = max(int(np.ceil((hi - lo) / (lam[0] / (8.0 * q_max)))) + 1, 16)
     G = GAIN_DEGREE_MAX + 1
     P = G + BACKGROUND_DEGREE + 1
-    sub = n * m
-    words = (sub * sub + 16 * sub * 16 + 16 * n * P * 12 + n * G * (G + P)
-             + 8 * K * int(spectra) + 16 * n * int(spectra))
+    words = (4 * T * fine + 2 * B * T * n + 16 * n * P * 12 + n * G * (G + P)
+             + 8 * B * K * int(spectra) + 16 * n * int(spectra))
     return int(8 * 1.2 * words + 64e6)
 
 
+def instrument_reflectance(wavelengths_nm, model, thickness_nm, thickness_spread_nm=0.0, resolution_nm=0.0):
+    """The reflectance the fit's model of the instrument reads at the strictly increasing
+    ``wavelengths_nm`` for films of thicknesses ``thickness_nm`` (K,): averaged over a
+    Gaussian thickness spread (standard deviation, nm), seen through a Gaussian line (full
+    width at half maximum, nm) and integrated over each pixel's width. Returns (K, n).
+
+    Examples
+    --------
+    >>> lam = np.linspace(450.0, 800.0, 200)
+    >>> film = FilmModel(1.33, 1.0)
+    >>> sharp, soft = (instrument_reflectance(lam, film, [3000.0], s)[0] for s in (0.0, 50.0))
+    >>> bool(np.ptp(soft) < 0.7 * np.ptp(sharp))
+    True
+    """
+    lam = np.asarray(wavelengths_nm, dtype=np.float64)
+    d = np.atleast_1d(np.asarray(thickness_nm, dtype=np.float64))
+    hi = max(float(d.max()) * 1.1, 100.0)
+    problem = _Problem(lam, model, None, None, (max(float(d.min()) * 0.9, 0.1), hi), False,
+                       BACKGROUND_DEGREE, (float(thickness_spread_nm),), (float(resolution_nm),))
+    return problem.reflectance(d)
+
+
 def fit_spectra(wavelengths_nm, spectra, model, *, background=None, reference=None,
-                thickness_range_nm=None, fit_film_ior=False):
+                thickness_range_nm=None, fit_film_ior=False, thickness_spread_nm=None,
+                resolution_nm=None):
     """Fit the film thickness (and index) of spectra sampled on one wavelength grid.
 
     Parameters
@@ -998,6 +1335,13 @@ def fit_spectra(wavelengths_nm, spectra, model, *, background=None, reference=No
         where fringes at the shortest wavelength would be less than two samples apart.
     fit_film_ior : bool
         Also fit an offset to the film index (the given index is the start).
+    thickness_spread_nm : float, optional
+        The thickness spread over the light spot (a standard deviation, nm) when known; by
+        default the fit chooses among :data:`SPREADS_NM`.
+    resolution_nm : float, optional
+        The instrument's line width (full width at half maximum, nm) when known; by default
+        the fit chooses among :data:`RESOLUTIONS_NM`. With ``fit_film_ior`` neither is fitted
+        (default 0: the loss of fringe contrast trades against the index).
 
     Returns
     -------
@@ -1032,8 +1376,16 @@ def fit_spectra(wavelengths_nm, spectra, model, *, background=None, reference=No
         raise ValueError(f"spectrum {int(flat[0])} does not vary: a spectrum without variation holds no "
                          f"thickness information")
     S, n = Y.shape[0], lam.size
+    # with a fitted index the instrument is taken as given (default: neither spread nor a
+    # line wider than a pixel): its washing out of the fringes trades against the index
+    spreads = ((0.0,) if fit_film_ior else SPREADS_NM) if thickness_spread_nm is None else (float(thickness_spread_nm),)
+    resolutions = (((0.0,) if fit_film_ior else RESOLUTIONS_NM) if resolution_nm is None
+                   else (float(resolution_nm),))
+    for name, values in (("thickness_spread_nm", spreads), ("resolution_nm", resolutions)):
+        if not all(np.isfinite(v) and 0.0 <= v <= 1000.0 for v in values):
+            raise ValueError(f"{name} must be from 0 to 1000 nm")
     problem = _Problem(lam, model, bg, ref, d_range, fit_film_ior,
-                       None if bg is not None else BACKGROUND_DEGREE)
+                       None if bg is not None else BACKGROUND_DEGREE, spreads, resolutions)
     out = _fit_problem(problem, Yfit)
     theta, var, cost, fitted, g_best, p_lin = (out[key] for key in ("theta", "var", "cost", "fitted", "g", "p_lin"))
     k = problem.k
@@ -1056,5 +1408,10 @@ def fit_spectra(wavelengths_nm, spectra, model, *, background=None, reference=No
             at_bound=bool(np.isclose(d, problem.d_lo) or np.isclose(d, problem.d_hi)),
             n_points=int(n),
             fitted=fitted[i] + (bg if bg is not None else 0.0),
+            thickness_spread_nm=problem.blurs[int(out["blur"][i])][0],
+            resolution_nm=problem.blurs[int(out["blur"][i])][1],
+            runner_up_thickness_nm=float(out["runner_up"][i]),
+            runner_up_chi2=float(out["runner_up_cost"][i] / dof / max(float(sigma_noise[i]) ** 2, 1e-300)),
+            runner_up_delta_bic=float(out["runner_up_dbic"][i]),
         ))
     return results

@@ -307,3 +307,19 @@ def test_a_scene_with_a_colour_polarization_sensor_is_also_scored_through_its_mo
     assert mosaic["normal_error_deg"]["mean"] < direct["normal_error_deg"]["mean"] + 1.5
     assert mosaic["thickness_error_nm"]["mean"] < direct["thickness_error_nm"]["mean"] + 5.0
     assert "coherent (mosaic)" in (tmp_path / "out" / "report.md").read_text()
+
+
+def test_refine_adds_a_refined_row_for_the_default(tmp_path):
+    """``benchmark --refine``: beside every method, the kind's default refined on the captures
+    (``coherent+refine``), scored like any row and in the leaderboard."""
+    out = tmp_path / "b"
+    assert main(["benchmark", "--suite", str(_tiny(tmp_path)), "--out", str(out), "--workers", "0",
+                 "--methods", "coherent", "--refine", "--no-figures"]) == 0
+    results = json.loads((out / "results.json").read_text())
+    methods = {r["method"] for r in results["rows"]}
+    assert {"coherent", "coherent+refine"} <= methods
+    refined = next(r for r in results["rows"] if r["method"] == "coherent+refine")
+    assert refined["status"] == "ok" and refined["metrics"]["normal_within_2sigma"] is not None
+    est = json.loads((out / refined["estimate"] / "estimate.json").read_text())
+    assert est["method"] == "coherent+refine" and est["refine"]["capture"] == "polarized_rgb"
+    assert "coherent+refine" in (out / "report.md").read_text()

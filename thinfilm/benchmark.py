@@ -155,7 +155,7 @@ def _safe(name: str) -> str:
 
 # -- the plan --------------------------------------------------------------------------------------
 
-def plan_benchmark(suite, quick=False, methods=None, resolution=None) -> dict:
+def plan_benchmark(suite, quick=False, methods=None, resolution=None, refine=False) -> dict:
     """Cases and tasks of a benchmark run, before anything runs.
 
     Parameters
@@ -168,6 +168,8 @@ def plan_benchmark(suite, quick=False, methods=None, resolution=None) -> dict:
         registered method.
     resolution : int, optional
         Every case at this image size.
+    refine : bool
+        Also each kind's default method refined (:mod:`thinfilm.refine`): rows ``NAME+refine``.
 
     Returns
     -------
@@ -206,6 +208,12 @@ def plan_benchmark(suite, quick=False, methods=None, resolution=None) -> dict:
                               "ref": refs.get((kind, m.name), m.name),
                               "folder": f"tasks/{case.id}/{label}",
                               "key": _task_key(spec_toml, kind, m.name, m.source, __version__)})
+                if refine and m.role == "default":
+                    label = f"{kind}-{_safe(m.name)}-refine"
+                    tasks.append({"case": case, "kind": kind, "method": m, "label": label,
+                                  "ref": refs.get((kind, m.name), m.name), "refine": True,
+                                  "folder": f"tasks/{case.id}/{label}",
+                                  "key": _task_key(spec_toml, kind, f"{m.name}+refine", m.source, __version__)})
         if case.spec.rig.sensor == "dofp-rgb" and "rgb" in case.kinds:
             # the same scene through its colour polarization sensor's raw image: imported
             # (demosaiced), reconstructed, and scored against the scene's captures and truth
@@ -227,13 +235,18 @@ def _task_key(spec_toml, kind, method, source, version) -> str:
 
 # -- tasks (run on Dask workers, or in this process) -----------------------------------------------
 
-def run_method(kind: str, dataset: Path, out: Path, method: str) -> None:
-    """Reconstruct ``dataset`` with registered ``method`` of ``kind`` into the folder ``out``."""
+def run_method(kind: str, dataset: Path, out: Path, method: str, refine: bool = False) -> None:
+    """Reconstruct ``dataset`` with registered ``method`` of ``kind`` into the folder ``out``
+    (then refined on the dataset's captures, with ``refine``)."""
     from thinfilm.core.io import write_estimate
     from thinfilm.core.outputs import atomic_output_dir
     from thinfilm.reconstruct import reconstruct
 
     est, _ = reconstruct(kind, dataset, method)
+    if refine:
+        from thinfilm.refine import refine as refine_estimate
+
+        est = refine_estimate(dataset, est)
     with atomic_output_dir(out, command="reconstruct", inputs=[dataset]) as tmp:
         write_estimate(tmp, est)
 
@@ -263,7 +276,7 @@ def _evaluate(dataset: Path, estimate: Path, out: Path, figures: bool = True) ->
 
 def _method_task(generated: dict, root: str, case_id: str, kind: str, method: str, role: str, source: str,
                  folder: str, key: str, name: str | None = None, figures: bool = True,
-                 mosaic: bool = False, staged: str | None = None) -> dict:
+                 mosaic: bool = False, staged: str | None = None, refine: bool = False) -> dict:
     """Reconstruct and score one case with one method (``method``: a registry name or
     ``package.module:function``, None for the ground truth; ``name``: its registry name),
     reading ``root/datasets/case_id``. The task folder is written atomically (``task.json``
@@ -277,7 +290,7 @@ def _method_task(generated: dict, root: str, case_id: str, kind: str, method: st
     dataset = root / "datasets" / case_id
     source_dataset = root / "datasets" / f"{case_id}-mosaic" if mosaic else dataset
     row = {"scene": case_id, "kind": kind,
-           "method": (name or method or "ground truth") + (" (mosaic)" if mosaic else ""),
+           "method": (name or method or "ground truth") + ("+refine" if refine else "") + (" (mosaic)" if mosaic else ""),
            "role": role, "source": source, "task": folder,
            "estimate": f"{folder}/estimate", "evaluation": f"{folder}/evaluation", "figures": bool(figures)}
     if generated.get("status") != "ok":
@@ -291,7 +304,7 @@ def _method_task(generated: dict, root: str, case_id: str, kind: str, method: st
             if method is None:
                 _ground_truth_estimate(dataset, tmp / "estimate")
             else:
-                run_method(kind, source_dataset, tmp / "estimate", method)
+                run_method(kind, source_dataset, tmp / "estimate", method, refine)
             row["reconstruct_s"] = round(time.perf_counter() - t0, 2)
             t0 = time.perf_counter()
             row.update(_evaluate(dataset, tmp / "estimate", tmp / "evaluation", figures))
@@ -356,13 +369,13 @@ def _finished_dataset(folder: Path, spec) -> bool:
 # -- the run -------------------------------------------------------------------------------------
 
 def run_benchmark(out, suite="presets", quick=False, methods=None, resolution=None, resume=False,
-                  workers=0, scheduler=None, progress=True, baseline=None, figures=True) -> dict:
+                  workers=0, scheduler=None, progress=True, baseline=None, figures=True, refine=False) -> dict:
     """Run a benchmark into ``out`` and return its results (the ``results.json`` content).
 
     Parameters
     ----------
     out : folder; an earlier output of ours there is replaced, or resumed with ``resume``.
-    suite, quick, methods, resolution : see :func:`plan_benchmark`.
+    suite, quick, methods, resolution, refine : see :func:`plan_benchmark`.
     resume : bool
         Keep finished datasets and tasks of an earlier run into ``out``.
     workers : int
@@ -380,7 +393,7 @@ def run_benchmark(out, suite="presets", quick=False, methods=None, resolution=No
     from thinfilm.core.outputs import OutputFolder, atomic_output_dir, open_output_dir
 
     t_start = time.perf_counter()
-    plan = plan_benchmark(suite, quick=quick, methods=methods, resolution=resolution)
+    plan = plan_benchmark(suite, quick=quick, methods=methods, resolution=resolution, refine=refine)
     suite = plan["suite"]
     inputs = [suite.path] if suite.path else []
     # --resume grows the earlier output in place, part by part; a new run is written aside and
@@ -426,7 +439,7 @@ def _run(folder, plan, suite, resume, workers, scheduler, progress, baseline, fi
                           "noise floor" if t["method"] is None else t["method"].role,
                           "thinfilm" if t["method"] is None else t["method"].source,
                           t["folder"], t["key"], None if t["method"] is None else t["method"].name, figures,
-                          bool(t.get("mosaic")), None),
+                          bool(t.get("mosaic")), None, bool(t.get("refine"))),
                          label=f"{t['case'].id}: {t['label']}") for t in todo]
     mosaic_cases = sorted({t["case"].id for t in todo if t.get("mosaic")})
     execution = {"mode": "nothing to run", "workers": 0}
@@ -462,7 +475,7 @@ def _run(folder, plan, suite, resume, workers, scheduler, progress, baseline, fi
                 if mosaic and state.get("status") == "ok":  # through the mosaic
                     state = imported.get(case_id, {"status": "failed", "error": "not imported"})
                 staged = str(folder.staging_path(task.key)) if state.get("status") == "ok" else None
-                task.args = (state,) + task.args[1:12] + (staged,)
+                task.args = (state,) + task.args[1:12] + (staged,) + task.args[13:]
             for key, value in run_tasks(method_tasks, ex, on_result=adopt_task, progress=progress,
                                         desc="benchmark").items():
                 rows[key] = value
@@ -785,7 +798,8 @@ def cli_main(args) -> int:
                             methods=_method_list(getattr(args, "methods", None)),
                             resolution=getattr(args, "resolution", None), resume=getattr(args, "resume", False),
                             workers=workers, scheduler=scheduler, progress=sys.stderr.isatty(),
-                            baseline=baseline, figures=not getattr(args, "no_figures", False))
+                            baseline=baseline, figures=not getattr(args, "no_figures", False),
+                            refine=getattr(args, "refine", False))
     rows = results["rows"]
     failed = [r for r in rows if "error" in r]
     ex = results["execution"]

@@ -298,6 +298,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="no PNG figures per task (faster for large suites; the report has the tables only)")
     _add_cluster_arguments(b)
     b.add_argument("--out", required=True, help="the run's folder (datasets, tasks, results.json, report.md)")
+    b.add_argument("--refine", action="store_true",
+                   help="also each kind's default method refined on the captures (rows NAME+refine)")
     b.set_defaults(target="thinfilm.benchmark:cli_main")
 
     fs = sub.add_parser("fit-spectrum", help="film thickness (and index) from measured reflection spectra",
@@ -321,6 +323,10 @@ def build_parser() -> argparse.ArgumentParser:
                     help="fit only these wavelengths (nm)")
     fs.add_argument("--thickness-range", type=float, nargs=2, metavar=("MIN", "MAX"), default=None,
                     help="thicknesses searched (nm; default 1 to 10000, less where the sampling is coarse)")
+    fs.add_argument("--resolution", type=float, default=None, metavar="FWHM",
+                    help="the spectrometer's line width, full width at half maximum in nm (default: fitted)")
+    fs.add_argument("--thickness-spread", type=float, default=None, metavar="SIGMA",
+                    help="thickness spread over the light spot, standard deviation in nm (default: fitted)")
     fs.add_argument("--fit-film-ior", action="store_true", help="fit the film index too")
     fs.add_argument("--json", action="store_true", help="one JSON object per line, one per spectrum")
     fs.set_defaults(target="thinfilm.fit_spectrum:cli_main")
@@ -376,6 +382,12 @@ def _add_import_parsers(sub) -> None:
                             "less 0.2%% for images; the data type's largest value for integer cubes)")
         q.add_argument("--white-reflectance", default="1", metavar="R|CSV",
                        help="reflectance of the white reference target: a number or a CSV spectrum (default 1)")
+        q.add_argument("--polarizer-extinction", default=None, metavar="E|E1,E2,...|FILE",
+                       help="measured extinction ratio of the polarizers (minimum over maximum transmittance, in "
+                            "[0, 1)): one for all, one per angle, or a text file of them")
+        q.add_argument("--polarizer-offset", default=None, metavar="DEG|D1,D2,...|FILE",
+                       help="measured axis of the polarizers minus their nominal angles, degrees: one for all, one "
+                            "per angle, or a text file of them")
 
     pol = isub.add_parser("polarization", help="polarizer images or a colour polarization-sensor mosaic",
                           **_examples("thinfilm import polarization frame.tiff --layout dofp-rgb --bit-depth 12 "
@@ -402,8 +414,18 @@ def _add_import_parsers(sub) -> None:
     pol.add_argument("--illuminant", default=None, metavar="NAME|CSV", help="illuminant for the forward models")
     pol.add_argument("--wavelengths", default=None, metavar="START:STOP:STEP|LIST|FILE",
                      help="bands of the camera model (default 400:720:4)")
+    pol.add_argument("--demosaic", default="bilinear", choices=("residual", "bilinear"),
+                     help="dofp-rgb: bilinear per plane (default) or residual (polarization- and colour-aware "
+                          "residual interpolation, object and background each from its own samples)")
+    pol.add_argument("--mask", default=None, metavar="IMAGE",
+                     help="dofp-rgb: the object's pixels (nonzero), same shape as the mosaic (default: found on "
+                          "the mosaic when a lit object is seen before a dark background)")
+    pol.add_argument("--edge-margin", type=int, default=None, metavar="N",
+                     help="dofp-rgb with --demosaic residual: mark the object's outermost N pixels invalid "
+                          "(default 3; 0 keeps them)")
     pol.add_argument("--keep-edges", action="store_true",
-                     help="dofp-rgb: keep pixels whose interpolation crosses the object's silhouette valid")
+                     help="dofp-rgb: keep every pixel at the object's silhouette valid (bilinear: those whose "
+                          "interpolation crosses it; residual: --edge-margin 0)")
     common(pol)
     pol.set_defaults(target="thinfilm.importers.polarization:cli_main")
 
@@ -416,6 +438,9 @@ def _add_import_parsers(sub) -> None:
                      help="band centres in nm (required for TIFF cubes; overrides an ENVI header)")
     spe.add_argument("--white", default=None, metavar="CUBE|CSV", help="white reference cube or spectrum")
     spe.add_argument("--dark", default=None, metavar="CUBE|CSV|LEVEL", help="dark reference cube, spectrum or level")
+    spe.add_argument("--flat", default=None, metavar="CUBE|IMAGE",
+                     help="flat field: a cube of a uniform field (same shape) or one image for every band; each "
+                          "band is divided by its response relative to its mean (with a --white spectrum)")
     spe.add_argument("--polarizer", default="s", choices=("s", "stokes"),
                      help="s: one s-polarized cube (default); stokes: cubes behind polarizers at --angles")
     spe.add_argument("--angles", default=None, metavar="A,B,C,...",

@@ -4,7 +4,8 @@
 
     thinfilm fit-spectrum SPECTRUM... --film-ior N|MATERIAL|cauchy:A,B[,C]|cauchy-nm:A,B[,C] --substrate-ior N3
         [--substrate-k K] [--angle DEG] [--background FILE] [--reference FILE]
-        [--wavelength-range MIN MAX] [--thickness-range MIN MAX] [--fit-film-ior] [--json]
+        [--wavelength-range MIN MAX] [--thickness-range MIN MAX] [--resolution FWHM]
+        [--thickness-spread SIGMA] [--fit-film-ior] [--json]
 
 Each SPECTRUM is fitted on its own (spectra sharing a wavelength grid are fitted in one batch);
 the algorithm, its model of the instrument and its uncertainties are described in
@@ -35,6 +36,14 @@ number or a material name (``1`` for a free-standing film in air); ``--substrate
 extinction. With ``--fit-film-ior`` an offset to the film index is fitted (the given index is
 the start) and reported at the middle of the fitted range.
 
+Instrument
+----------
+The model of a reading includes the spectrometer's line width (``--resolution``, full width at
+half maximum in nm) and the spread of the thickness over the light spot
+(``--thickness-spread``, a standard deviation in nm); each is fitted (chosen among a few
+values) unless given. Both wash out the fringes of thick films. The fit chooses the
+interference order and regime itself; the best other reading is reported as the runner-up.
+
 Limits
 ------
 A spectrum file is at most :data:`MAX_SPECTRUM_BYTES` bytes (its size is checked before it is
@@ -58,11 +67,16 @@ A table, or with ``--json`` one JSON object per line, one per SPECTRUM in the or
     {"path": ..., "thickness_nm": ..., "thickness_sigma_nm": ..., "film_ior": ...,
      "film_ior_wavelength_nm": ..., "film_ior_sigma": ... (with --fit-film-ior),
      "chi2": ..., "rms_residual": ..., "fringes": ..., "n_points": ...,
-     "wavelength_range_nm": [min, max], "at_bound": ...}
+     "wavelength_range_nm": [min, max], "at_bound": ..., "thickness_spread_nm": ...,
+     "resolution_nm": ..., "runner_up_thickness_nm": ..., "runner_up_chi2": ...,
+     "runner_up_delta_bic": ...}
 
 ``chi2`` is the reduced chi-square against the spectrum's own point-to-point noise (well above
 1: a misfit, or a smoothed spectrum); ``rms_residual`` is in the units of the spectrum;
-``at_bound`` flags a thickness on an end of ``--thickness-range``.
+``at_bound`` flags a thickness on an end of ``--thickness-range``. The runner-up is the best
+reading a quarter of an interference order or more from the fit (``null`` where there is
+none), ``runner_up_delta_bic`` how much worse it fits: a few units or less, and both readings
+explain the spectrum about equally (the sigma then spans them).
 """
 
 from __future__ import annotations
@@ -267,6 +281,10 @@ def _check_options(args):
         if hi > MAX_THICKNESS_NM:
             raise UserError(f"--thickness-range: MAX must be at most {MAX_THICKNESS_NM:g} nm, got {hi:g}")
         d_range = (lo, hi)
+    for option, value in (("--resolution", getattr(args, "resolution", None)),
+                          ("--thickness-spread", getattr(args, "thickness_spread", None))):
+        if value is not None and not (math.isfinite(value) and 0.0 <= value <= 1000.0):
+            raise UserError(f"{option}: expected a width from 0 to 1000 nm, got {value:g}")
     return FilmModel(film, substrate, k3, angle), lam_range, d_range
 
 
@@ -376,6 +394,11 @@ def _format_row(r):
         "n_points": r["fit"].n_points,
         "wavelength_range_nm": [float(r["lam"][0]), float(r["lam"][-1])],
         "at_bound": r["fit"].at_bound,
+        "thickness_spread_nm": r["fit"].thickness_spread_nm,
+        "resolution_nm": r["fit"].resolution_nm,
+        "runner_up_thickness_nm": r["fit"].runner_up_thickness_nm,
+        "runner_up_chi2": r["fit"].runner_up_chi2,
+        "runner_up_delta_bic": r["fit"].runner_up_delta_bic,
     })
     return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in out.items()}
 
@@ -388,7 +411,7 @@ def _table(rows, fit_ior):
     head = ["spectrum", "thickness_nm", "sigma_nm"]
     if fit_ior:
         head += ["film_ior", "sigma"]
-    head += ["chi2", "rms_residual", "fringes", "note"]
+    head += ["chi2", "rms_residual", "fringes", "runner_up_nm", "its_chi2", "note"]
     body = []
     for r in rows:
         f = r["fit"]
@@ -396,6 +419,7 @@ def _table(rows, fit_ior):
         if fit_ior:
             cells += [num(f.film_ior, ".4f"), num(f.film_ior_sigma, ".2g")]
         cells += [num(f.chi2, ".3g"), num(f.rms_residual, ".3g"), num(f.fringes, ".1f"),
+                  num(f.runner_up_thickness_nm, ".2f"), num(f.runner_up_chi2, ".3g"),
                   "at the end of --thickness-range" if f.at_bound else ""]
         body.append(cells)
     widths = [max(len(str(x[i])) for x in [head] + body) for i in range(len(head))]
@@ -471,7 +495,9 @@ def cli_main(args):
         first = prepared[members[0]]
         fits = fit_spectra(first["lam"], np.stack([prepared[i]["values"] for i in members]), model,
                            background=first.get("background"), reference=first.get("reference"),
-                           thickness_range_nm=d_range, fit_film_ior=args.fit_film_ior)
+                           thickness_range_nm=d_range, fit_film_ior=args.fit_film_ior,
+                           thickness_spread_nm=getattr(args, "thickness_spread", None),
+                           resolution_nm=getattr(args, "resolution", None))
         for i, f in zip(members, fits):
             prepared[i]["fit"] = f
 

@@ -12,7 +12,12 @@ import numpy as np
 from thinfilm.core.errors import ThinfilmWarning, UserError
 
 __all__ = ["DEFAULT_WAVELENGTHS", "parse_numbers", "parse_angles", "parse_wavelengths", "read_spectrum_csv",
-           "reference_reflectance", "file_record", "csv_records", "film_fields", "import_meta", "warn_relative_units", "input_files"]
+           "reference_reflectance", "file_record", "csv_records", "film_fields", "import_meta", "warn_relative_units", "input_files",
+           "polarizer_calibration", "correct_polarizers", "check_dark_values", "POLARIZER_CORRECTED"]
+
+#: ``calibration.polarizer.correction`` of ``meta.json`` when the captures were corrected to
+#: ideal polarizers at the nominal angles
+POLARIZER_CORRECTED = "captures corrected to ideal polarizers at the nominal angles"
 
 #: The wavelength grid of the camera model when none is given (the generator's default bands).
 DEFAULT_WAVELENGTHS = "400:720:4"
@@ -201,3 +206,88 @@ def input_files(*items) -> list:
         if path.exists():
             out.append(path)
     return out
+
+
+def _calibration_numbers(text, where: str, count: int) -> tuple:
+    """A number, comma-separated numbers (one per polarizer angle) or a text file of them
+    (``#`` comments): (values (count,), the file's provenance record or None)."""
+    from thinfilm.core.files import read_text_file
+
+    path = Path(str(text)).expanduser()
+    record = None
+    if path.is_file():
+        body = "\n".join(line.split("#", 1)[0] for line in read_text_file(path, f"{where} file").splitlines())
+        values = parse_numbers(body, f"{where}: {path}")
+        record = file_record(path, where.strip("-").replace("-", " "))
+    else:
+        values = parse_numbers(text, where)
+    if len(values) == 1:
+        values = values * count
+    if len(values) != count:
+        raise UserError(f"{where}: {len(values)} values for {count} polarizer angles (give one, or one per angle)")
+    return values, record
+
+
+def polarizer_calibration(extinction, offset, angles) -> tuple:
+    """``--polarizer-extinction`` and ``--polarizer-offset`` (numbers, one per angle, or files
+    of them) for the polarizers at ``angles``: (the ``calibration.polarizer`` entry of
+    ``meta.json``, or None when neither is given; provenance records of the files).
+
+    The extinction ratio ε is the polarizer's minimum over maximum transmittance, in [0, 1);
+    the offset δ, in degrees within ±45°, is its measured axis minus its nominal angle, in
+    the project's convention (counter-clockwise from image +x towards +y)."""
+    if extinction is None and offset is None:
+        return None, []
+    n = len(angles)
+    records = []
+    eps, off = [0.0] * n, [0.0] * n
+    if extinction is not None:
+        eps, rec = _calibration_numbers(extinction, "--polarizer-extinction", n)
+        records += [rec] if rec else []
+        bad = [e for e in eps if not 0.0 <= e < 1.0]
+        if bad:
+            raise UserError(f"--polarizer-extinction: an extinction ratio (minimum over maximum transmittance) must "
+                            f"lie in [0, 1), got {bad[0]:g}")
+    if offset is not None:
+        off, rec = _calibration_numbers(offset, "--polarizer-offset", n)
+        records += [rec] if rec else []
+        bad = [d for d in off if not abs(d) < 45.0]
+        if bad:
+            raise UserError(f"--polarizer-offset: an angle offset must lie within +-45 degrees, got {bad[0]:g}")
+    entry = {"angles_deg": [int(a) for a in angles], "extinction_ratio": [float(e) for e in eps],
+             "angle_offset_deg": [float(d) for d in off],
+             "diattenuation": [float((1 - e) / (1 + e)) for e in eps],
+             "model": "I = 1/2 (S0 + D (S1 cos 2(a + offset) + S2 sin 2(a + offset))), D = (1 - e) / (1 + e)"}
+    return entry, records
+
+
+def correct_polarizers(images: dict, entry: dict) -> tuple:
+    """Images behind real polarizers (``entry``: :func:`polarizer_calibration`) → the images
+    ideal polarizers at the nominal angles would give: per pixel the least-squares Stokes
+    vector through the real analyzer (:func:`thinfilm.core.conventions.analyzer_matrix`)
+    replaces the real polarizers' part of each image by the ideal ones' (what the fit does
+    not explain, the noise, stays). Returns (images, noise gain): the gain is how much the
+    correction multiplies the noise of the linear Stokes parameters S1, S2 (the square root
+    of the ratio of their least-squares variances with the real and with ideal polarizers)."""
+    from thinfilm.core.conventions import analyzer_matrix, stokes_design_matrix
+
+    angles = entry["angles_deg"]
+    real = analyzer_matrix(angles, entry["extinction_ratio"], entry["angle_offset_deg"])
+    ideal = stokes_design_matrix(angles)
+    stack = np.stack([np.asarray(images[a], dtype=np.float64) for a in angles])
+    stokes = np.tensordot(np.linalg.pinv(real), stack, axes=(1, 0))
+    corrected = stack + np.tensordot(ideal - real, stokes, axes=(1, 0))
+    var_real = np.diag(np.linalg.inv(real.T @ real))[1:]
+    var_ideal = np.diag(np.linalg.inv(ideal.T @ ideal))[1:]
+    gain = float(np.sqrt(np.max(var_real / var_ideal)))
+    return {a: corrected[k] for k, a in enumerate(angles)}, gain
+
+
+def check_dark_values(values, where: str) -> None:
+    """A dark frame or reference may hold no negative value (NaN and infinities are stopped
+    by the readers)."""
+    values = np.asarray(values, dtype=np.float64)
+    if not np.all(np.isfinite(values)):
+        raise UserError(f"{where}: contains NaN or infinite values")
+    if np.any(values < 0):
+        raise UserError(f"{where}: holds negative values (down to {float(values.min()):g}); a dark level is >= 0")

@@ -9,10 +9,18 @@ Two layouts (``--layout``):
     The raw image of a colour division-of-focal-plane sensor: each pixel behind one colour
     filter and one polarizer, in the pattern of ``--pattern`` (default: Sony IMX250MYR, see
     :mod:`thinfilm.core.mosaic` for the diagram and the notation). Several raw frames of the
-    same scene are averaged. Demosaicing: :mod:`thinfilm.importers.demosaic` (bilinear per
-    plane, float64, exact at the sampled pixels).
+    same scene are averaged. Demosaicing (``--demosaic``, :mod:`thinfilm.importers.demosaic`):
+    ``residual`` (default), polarization- and colour-aware residual interpolation that
+    interpolates the object and the background each from its own samples (the object's
+    pixels: ``--mask IMAGE``, nonzero on the object, or found on the mosaic when it shows a
+    lit object before a dark background; the object's outermost ``--edge-margin`` pixels,
+    default :data:`thinfilm.importers.demosaic.DEFAULT_EDGE_MARGIN`, are marked invalid), or
+    ``bilinear`` per plane; both float64 and exact at the sampled pixels.
 
-Calibration, in this order, on the raw values of every image (and of the reference images):
+Calibration, in this order, on the raw values of every image (and of the reference images);
+bad calibration input (a shape that differs from the images', a negative or non-finite dark, a
+flat field at or below the dark level anywhere, an extinction ratio outside [0, 1)) stops the
+import with one line:
 
 1. saturation: a sample at or above ``--saturation`` (default: within 0.2 % of the largest code
    of the bit depth, ``2^bits − 1``) invalidates its pixel (with ``dofp-rgb``: every pixel whose
@@ -24,7 +32,16 @@ Calibration, in this order, on the raw values of every image (and of the referen
 4. flat field: ``--flat FILE`` (an image of a uniform, unpolarized field, same shape; dark
    subtracted too) divides each pixel by its response relative to the mean of its colour and
    angle (``dofp-rgb``) or of its channel (``separate``);
-5. white balance to reflectance units, where a perfect mirror seen without a polarizer gives
+5. polarizers (after the demosaicing, ``dofp-rgb``): ``--polarizer-extinction E`` (the measured
+   extinction ratio, minimum over maximum transmittance) and ``--polarizer-offset DEG`` (the
+   measured axis minus the nominal angle), each one number, one per angle (in the order of
+   ``--angles``, or of the pattern's sorted angles) or a text file of them: per pixel the
+   Stokes vector is fitted through the real analyzer
+   (:func:`thinfilm.core.conventions.analyzer_matrix`) and the images are corrected to those
+   of ideal polarizers at the nominal angles, which the reconstruction's model assumes;
+   ``meta.json`` records the values and the factor by which the correction multiplies the
+   noise of S1, S2;
+6. white balance to reflectance units, where a perfect mirror seen without a polarizer gives
    (1, 1, 1) and unpolarized white behind an ideal polarizer 0.5:
    ``--white-balance R,G,B`` multiplies each colour by a gain; or ``--white-reference IMAGE``,
    an image of a diffuse reference target (unpolarized, seen through the polarizers like the
@@ -35,8 +52,8 @@ Calibration, in this order, on the raw values of every image (and of the referen
 
 Values must be linear in the light (raw data, or raw-developed without gamma or tone curve).
 The dataset holds ``polarized_rgb.exr`` (float32), ``valid.exr`` (pixels free of saturation and,
-with ``dofp-rgb``, off the object's silhouette, see :func:`thinfilm.importers.demosaic.edge_pixels`;
-the reconstructions use only these), ``meta.json`` (``source = "imported"``, the inputs with
+with ``dofp-rgb --demosaic bilinear``, off the object's silhouette, see
+:func:`thinfilm.importers.demosaic.edge_pixels`; the reconstructions use only these), ``meta.json`` (``source = "imported"``, the inputs with
 their SHA-256, the calibration, ``camera`` and ``illuminant`` when given, ``wavelengths_nm``
 for the forward models) and ``preview.png``; no ground truth.
 """
@@ -50,8 +67,9 @@ import numpy as np
 
 from thinfilm.core.errors import ThinfilmWarning, UserError
 
-from .common import (DEFAULT_WAVELENGTHS, csv_records, file_record, film_fields, import_meta, input_files, parse_angles, parse_numbers,
-                     parse_wavelengths, reference_reflectance, warn_relative_units)
+from .common import (DEFAULT_WAVELENGTHS, POLARIZER_CORRECTED, check_dark_values, correct_polarizers, csv_records,
+                     file_record, film_fields, import_meta, input_files, parse_angles, parse_numbers, parse_wavelengths,
+                     polarizer_calibration, reference_reflectance, warn_relative_units)
 from .images import apply_bit_depth, read_image
 
 __all__ = ["LAYOUTS", "SATURATION_MARGIN", "import_polarization", "cli_main"]
@@ -119,6 +137,7 @@ class _Calibration:
             self.dark_record = level
             return level
         img = self._read(dark, "--dark frame")
+        check_dark_values(img.data, f"{img.path}: the --dark frame")
         self.dark_record = file_record(img.path, "dark")
         return img.data.astype(np.float64)
 
@@ -151,6 +170,11 @@ class _Calibration:
         good = (x > 0) & ~sat
         if not good.any():
             raise UserError(f"{img.path}: the --flat field is at or below the dark level (or saturated) everywhere")
+        if not good.all():
+            r, c = np.argwhere(~good)[0][:2]
+            raise UserError(f"{img.path}: the --flat field is at or below the dark level (or saturated) at "
+                            f"{int((~good).sum())} samples, the first at row {r}, column {c}; a flat field must be "
+                            f"positive everywhere")
         rel = np.ones_like(x)
         for k in np.unique(self.index_map):
             sel = self.index_map == k
@@ -172,6 +196,18 @@ class _Calibration:
                 "normalization": ("(raw - dark) / (2^bits - 1)" if self.max_code is not None
                                   else "floating-point samples taken as normalized"),
                 "bit_depth": self.bits, "saturation_level": self.saturation}
+
+
+def _read_mask(path, shape):
+    """``--mask``: an image of the mosaic's shape, nonzero on the object."""
+    img = read_image(path, "--mask image")
+    data = img.data if img.data.ndim == 2 else img.data.max(axis=-1)
+    if data.shape != tuple(shape):
+        raise UserError(f"{img.path}: the --mask image has shape {data.shape}, the mosaic {tuple(shape)}")
+    obj = data > 0
+    if not obj.any():
+        raise UserError(f"{img.path}: the --mask image is zero everywhere (no object)")
+    return obj
 
 
 def _read_inputs(paths, layout, bit_depth):
@@ -210,7 +246,8 @@ def _read_inputs(paths, layout, bit_depth):
 def import_polarization(images, out, layout, angles=None, pattern=None, bit_depth=None, dark=None, flat=None,
                         white_balance=None, white_reference=None, white_reflectance="1", camera=None,
                         illuminant=None, wavelengths=None, saturation=None, keep_edges=False, film_ior=None,
-                        substrate_ior=None, pixel_size=None) -> dict:
+                        substrate_ior=None, pixel_size=None, demosaic="bilinear", mask=None,
+                        polarizer_extinction=None, polarizer_offset=None, edge_margin=None) -> dict:
     """Import polarization-camera images into a dataset folder ``out`` (see the module
     docstring for every option). Returns a summary (``shape``, ``angles``, ``valid_pixels``,
     ``units``, ``path``)."""
@@ -219,8 +256,19 @@ def import_polarization(images, out, layout, angles=None, pattern=None, bit_dept
     from thinfilm.core.mosaic import DEFAULT_PATTERN, parse_pattern
     from thinfilm.core.outputs import atomic_output_dir, check_output_dir
 
+    from .demosaic import METHODS
+
     if layout not in LAYOUTS:
         raise UserError(f"--layout: expected one of {', '.join(LAYOUTS)}, got {layout!r}")
+    demosaic_method = demosaic
+    if demosaic_method not in METHODS:
+        raise UserError(f"--demosaic: expected one of {', '.join(METHODS)}, got {demosaic_method!r}")
+    if edge_margin is not None and (int(edge_margin) != edge_margin or edge_margin < 0):
+        raise UserError(f"--edge-margin: expected a whole number of pixels >= 0, got {edge_margin}")
+    if edge_margin is not None and demosaic_method != "residual":
+        raise UserError("--edge-margin applies to --demosaic residual (bilinear marks its own band; see --keep-edges)")
+    if layout == "separate" and mask is not None:
+        raise UserError("--mask describes the object on a mosaic; it applies to --layout dofp-rgb only")
     if layout == "separate":
         if pattern is not None:
             raise UserError("--pattern describes a mosaic; it applies to --layout dofp-rgb only")
@@ -237,6 +285,7 @@ def import_polarization(images, out, layout, angles=None, pattern=None, bit_dept
         angle_list = list(pat.angles)
     if white_balance is not None and white_reference is not None:
         raise UserError("give either --white-balance or --white-reference, not both")
+    pol_entry, pol_records = polarizer_calibration(polarizer_extinction, polarizer_offset, angle_list)
     if bit_depth is not None and not 1 <= int(bit_depth) <= 16:
         raise UserError(f"--bit-depth: expected 1 to 16 bits, got {bit_depth}")
     if pixel_size is not None and not (np.isfinite(pixel_size) and pixel_size > 0):
@@ -244,7 +293,8 @@ def import_polarization(images, out, layout, angles=None, pattern=None, bit_dept
     wl = parse_wavelengths(wavelengths or DEFAULT_WAVELENGTHS)
     camera, illuminant = _colour_model(camera, illuminant, wl)
     meta_film = film_fields(film_ior, substrate_ior)
-    in_files = input_files(*images, dark, flat, white_reference, white_reflectance, camera, illuminant)
+    in_files = input_files(*images, dark, flat, white_reference, white_reflectance, camera, illuminant, mask,
+                           polarizer_extinction, polarizer_offset)
     out = check_output_dir(out, command="import polarization", inputs=in_files)
     # the lock of --out is held from here to the end: a second writer stops at once
     with atomic_output_dir(out, command="import polarization", inputs=in_files) as tmp:
@@ -262,6 +312,7 @@ def import_polarization(images, out, layout, angles=None, pattern=None, bit_dept
             colour_map = np.broadcast_to(np.arange(3), shape)
             index_map = colour_map
         cal = _Calibration(first.bits, shape, dark, flat, saturation, index_map, first.is_float)
+        object_mask_given = None if mask is None else _read_mask(mask, hw)
 
         # 1-4: saturation, dark, normalization, flat field
         calibrated, saturated = [], np.zeros(shape, dtype=bool)
@@ -314,19 +365,37 @@ def import_polarization(images, out, layout, angles=None, pattern=None, bit_dept
 
         # demosaic / assemble, and the pixels that can be trusted
         if layout == "dofp-rgb":
-            from .demosaic import demosaic, edge_pixels, footprint
+            from .demosaic import (DEFAULT_EDGE_MARGIN, demosaic, edge_pixels, footprint, object_mask, residual_demosaic,
+                                   silhouette_band)
 
             frame = frame * gains[colour_map]
-            polarized = demosaic(frame, pat)
             bad_samples = saturated | (cal.bad_flat if cal.bad_flat is not None else False)
             bad = footprint(bad_samples, pat)
             n_sat = int(footprint(saturated, pat).sum())
-            edges = np.zeros(hw, dtype=bool) if keep_edges else edge_pixels(frame, pat)
+            if demosaic_method == "residual":
+                obj, mask_kind = (object_mask_given, "given") if object_mask_given is not None else (
+                    object_mask(frame, pat), "found")
+                if obj is None:
+                    mask_kind = "none (no dark background)"
+                polarized, unserved = residual_demosaic(frame, pat, mask=obj, exclude=bad_samples)
+                bad = bad | unserved
+                margin = DEFAULT_EDGE_MARGIN if edge_margin is None else int(edge_margin)
+                edges = np.zeros(hw, dtype=bool) if (obj is None or keep_edges) else silhouette_band(obj, margin)
+                edge_text = (f"each side of the object's silhouette is interpolated from its own samples; the object's "
+                             f"outermost {0 if keep_edges else margin} pixels are marked invalid"
+                             if obj is not None else "kept")
+                mask_info = {"object_mask": mask_kind, "unserved_pixels": int(unserved.sum()),
+                             "edge_margin": 0 if keep_edges else margin}
+            else:
+                polarized = demosaic(frame, pat, "bilinear")
+                edges = np.zeros(hw, dtype=bool) if keep_edges else edge_pixels(frame, pat)
+                edge_text = "kept" if keep_edges else ("pixels whose interpolation crosses the object's silhouette "
+                                                       "are marked invalid")
+                mask_info = {}
             valid = ~bad & ~edges
             layout_info = {"layout": layout, "pattern": pat.text, "pattern_period": pat.diagram().split("\n"),
-                           "frames": len(imgs), "edge_pixels": int(edges.sum()),
-                           "edges": "kept" if keep_edges else "pixels whose interpolation crosses the object's "
-                                                              "silhouette are marked invalid"}
+                           "frames": len(imgs), "demosaic": demosaic_method, **mask_info,
+                           "edge_pixels": int(edges.sum()), "edges": edge_text}
         else:
             polarized = {a: x * gains for a, x in zip(angle_list, calibrated)}
             bad = saturated.any(axis=-1)
@@ -337,6 +406,10 @@ def import_polarization(images, out, layout, angles=None, pattern=None, bit_dept
             layout_info = {"layout": layout, "files_angles_deg": dict(zip([img.path.name for img in imgs], angle_list))}
         if not valid.any():
             raise UserError(f"{first.path}: no pixel is usable (saturated or at the flat field's dark level everywhere)")
+        if pol_entry is not None:   # real polarizers (extinction, axis offsets) -> ideal ones
+            polarized, gain = correct_polarizers(polarized, pol_entry)
+            calib["polarizer"] = dict(pol_entry, correction=POLARIZER_CORRECTED, noise_gain_s1_s2=gain)
+            inputs += pol_records
 
         fields = dict(
             wavelengths_nm=[float(v) for v in wl],
@@ -363,7 +436,9 @@ def cli_main(args) -> int:
         dark=args.dark, flat=args.flat, white_balance=args.white_balance, white_reference=args.white_reference,
         white_reflectance=args.white_reflectance, camera=args.camera, illuminant=args.illuminant,
         wavelengths=args.wavelengths, saturation=args.saturation, keep_edges=args.keep_edges,
-        film_ior=args.film_ior, substrate_ior=args.substrate_ior, pixel_size=args.pixel_size)
+        film_ior=args.film_ior, substrate_ior=args.substrate_ior, pixel_size=args.pixel_size,
+        demosaic=args.demosaic, mask=args.mask, polarizer_extinction=args.polarizer_extinction,
+        polarizer_offset=args.polarizer_offset, edge_margin=args.edge_margin)
     h, w = s["shape"]
     print(f"wrote {s['path']} ({args.layout}, {w}x{h}, polarizer angles {', '.join(map(str, s['angles']))}; "
           f"{s['valid_pixels']} valid pixels, {s['saturated_pixels']} saturated; units {s['units']})")

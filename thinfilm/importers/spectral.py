@@ -25,20 +25,34 @@ warning is printed).
     dark)``; the least-squares Stokes fit gives ``stokes_spectral.exr`` and ``spectral_s =
     S0 + sqrt(S1² + S2²)``, as the generator's hyperspectral camera does.
 
+Calibration: ``--flat`` (with a ``--white`` spectrum; a cube of a uniform field of the cubes'
+shape, or one image for every band) divides each pixel by its response relative to the band's
+mean, dark subtracted. ``--polarizer-extinction`` and ``--polarizer-offset`` (the polarizers'
+measured extinction ratio and axis offset; one number, one per cube or a text file) are
+recorded in ``meta.json``; with ``stokes`` the Stokes cube is fitted through the real analyzer
+(:func:`thinfilm.core.conventions.analyzer_matrix`), so the captures are those of ideal
+polarizers; a single ``s`` cube cannot be corrected (``S0 + D P cos 2δ`` needs ``S0`` and
+``P`` apart): the import and every estimator reading the dataset warn. A negative or
+non-finite dark, a flat field at or below the dark level anywhere, or shapes that differ stop
+the import with one line.
+
 Integer cubes: samples at or above ``--saturation`` (default: the largest value of the data
 type) invalidate their pixel (``valid.exr``), as do pixels where ``white ≤ dark``.
 """
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
 
-from thinfilm.core.errors import UserError
+from thinfilm.core.dataset import POLARIZER_NOT_CORRECTED
+from thinfilm.core.errors import ThinfilmWarning, UserError
 from thinfilm.core.extras import require_extra
 
-from .common import (csv_records, file_record, film_fields, import_meta, input_files, parse_angles, parse_numbers, parse_wavelengths,
+from .common import (POLARIZER_CORRECTED, check_dark_values, csv_records, file_record, film_fields, import_meta,
+                     input_files, parse_angles, parse_numbers, parse_wavelengths, polarizer_calibration,
                      read_spectrum_csv, reference_reflectance, warn_relative_units)
 
 __all__ = ["POLARIZERS", "read_cube", "import_spectral", "cli_main"]
@@ -163,8 +177,8 @@ def _reference(spec, what, shape, wavelengths, order):
     if level is not None:
         if what == "--white":
             raise UserError(f"--white: expected a cube or a spectrum file, got the number {spec!r}")
-        if not np.isfinite(level):
-            raise UserError(f"{what}: expected a finite number, got {spec!r}")
+        if not np.isfinite(level) or level < 0:
+            raise UserError(f"{what}: expected a finite number >= 0, got {spec!r}")
         return np.full(shape[2], level), level
     p = Path(spec).expanduser()
     if p.suffix.lower() == ".csv":
@@ -172,9 +186,14 @@ def _reference(spec, what, shape, wavelengths, order):
         if rw[0] > wavelengths[0] + 1e-6 or rw[-1] < wavelengths[-1] - 1e-6:
             raise UserError(f"{what}: {p}: covers {rw[0]:g}-{rw[-1]:g} nm, not the bands "
                             f"{wavelengths[0]:g}-{wavelengths[-1]:g} nm")
-        return np.interp(wavelengths, rw, rv), [file_record(p, what.strip("-"))]
+        values = np.interp(wavelengths, rw, rv)
+        if what == "--dark":
+            check_dark_values(values, f"{what}: {p}")
+        return values, [file_record(p, what.strip("-"))]
     ref = read_cube(p, what.strip("-") + " reference")
     data = ref.data[..., order]
+    if what == "--dark":
+        check_dark_values(data, f"{ref.path}: the --dark reference")
     if data.shape == shape:
         return data, ref.records(what.strip("-"))
     if data.shape[:2] == (1, 1) and data.shape[2] == shape[2]:
@@ -185,7 +204,7 @@ def _reference(spec, what, shape, wavelengths, order):
 
 def import_spectral(cubes, out, wavelengths=None, white=None, dark=None, white_reflectance="1", polarizer="s",
                     angles=None, saturation=None, band_fwhm=None, film_ior=None, substrate_ior=None,
-                    pixel_size=None) -> dict:
+                    pixel_size=None, flat=None, polarizer_extinction=None, polarizer_offset=None) -> dict:
     """Import hyperspectral cubes into a dataset folder ``out`` (see the module docstring).
     Returns a summary (``shape``, ``bands``, ``valid_pixels``, ``units``, ``path``)."""
     from thinfilm.core.conventions import fit_stokes, s_polarized
@@ -212,8 +231,10 @@ def import_spectral(cubes, out, wavelengths=None, white=None, dark=None, white_r
         raise UserError(f"--band-fwhm: expected a number of nm >= 0, got {band_fwhm}")
     if pixel_size is not None and not (np.isfinite(pixel_size) and pixel_size > 0):
         raise UserError(f"--pixel-size: expected a number > 0, got {pixel_size}")
+    pol_entry, pol_records = polarizer_calibration(polarizer_extinction, polarizer_offset,
+                                                   angle_list if angle_list is not None else [0])
     meta_film = film_fields(film_ior, substrate_ior)
-    in_files = input_files(*cubes, white, dark, white_reflectance)
+    in_files = input_files(*cubes, white, dark, white_reflectance, flat, polarizer_extinction, polarizer_offset)
     out = check_output_dir(out, command="import spectral", inputs=in_files)
     # the lock of --out is held from here to the end: a second writer stops at once
     with atomic_output_dir(out, command="import spectral", inputs=in_files) as tmp:
@@ -285,14 +306,40 @@ def import_spectral(cubes, out, wavelengths=None, white=None, dark=None, white_r
             scale = 1.0
             units = "relative"
             warn_relative_units("spectra")
+        if flat is not None:
+            if white is not None and np.ndim(w_ref) == 3:
+                raise UserError("--flat: the --white reference is a cube of the same shape, which corrects each "
+                                "pixel's response already; give a --white spectrum with --flat, or no --flat")
+            rel, recs = _flat_field(flat, shape, d_ref, order)
+            inputs += recs
+            calib["flat"] = recs[-1]
+            scale = scale / rel
         calibrated = [(d - d_ref) * scale for d in data]
 
         stokes = None
         if polarizer == "s":
             spectral_s = calibrated[0]
+            if pol_entry is not None:
+                # one cube cannot be corrected: S0 + D P cos 2(offset) needs S0 and P apart
+                entry = {k: v[0] if isinstance(v, list) else v for k, v in pol_entry.items()}
+                entry["angles_deg"] = "s-direction"
+                calib["polarizer"] = dict(entry, correction=POLARIZER_NOT_CORRECTED)
+                warnings.warn(f"{first.path}: a single s-polarized cube cannot be corrected for the polarizer's "
+                              f"extinction or axis offset; they are recorded in meta.json, and the estimators, "
+                              f"which model an ideal polarizer, warn", ThinfilmWarning, stacklevel=2)
         else:
             intensity = 0.5 * np.stack(calibrated)          # behind each polarizer, reflectance units
-            S0, S1, S2 = fit_stokes(intensity, angle_list)
+            if pol_entry is None:
+                S0, S1, S2 = fit_stokes(intensity, angle_list)
+            else:   # the Stokes cube through the real analyzer (extinction, axis offsets)
+                from thinfilm.core.conventions import analyzer_matrix, stokes_design_matrix
+
+                real = analyzer_matrix(angle_list, pol_entry["extinction_ratio"], pol_entry["angle_offset_deg"])
+                S0, S1, S2 = np.tensordot(np.linalg.pinv(real), intensity, axes=(1, 0))
+                ideal = stokes_design_matrix(angle_list)
+                gain = float(np.sqrt(np.max(np.diag(np.linalg.inv(real.T @ real))[1:]
+                                            / np.diag(np.linalg.inv(ideal.T @ ideal))[1:])))
+                calib["polarizer"] = dict(pol_entry, correction=POLARIZER_CORRECTED, noise_gain_s1_s2=gain)
             stokes = {"S0": S0, "S1": S1, "S2": S2}
             spectral_s = s_polarized(S0, S1, S2)
         valid = ~saturated & ~bad
@@ -310,6 +357,7 @@ def import_spectral(cubes, out, wavelengths=None, white=None, dark=None, white_r
             saturated_pixels=int(saturated.sum()),
             valid_pixels=int(valid.sum()),
         )
+        inputs += pol_records
         meta = import_meta("spectral", inputs, units, calib, **fields)
         write_dataset(tmp, meta, spectral_s=np.asarray(spectral_s, dtype=np.float32),
                       stokes=None if stokes is None else {k: np.asarray(v, dtype=np.float32) for k, v in stokes.items()},
@@ -317,6 +365,35 @@ def import_spectral(cubes, out, wavelengths=None, white=None, dark=None, white_r
     return {"path": out, "shape": shape[:2], "bands": int(shape[2]), "valid_pixels": int(valid.sum()),
             "saturated_pixels": int(saturated.sum()), "units": units, "meta": meta, "spectral_s": spectral_s,
             "stokes": stokes, "valid": valid}
+
+
+def _flat_field(spec, shape, d_ref, order):
+    """``--flat``: a cube of a uniform field of the cubes' shape, or one image (H, W) for every
+    band; dark subtracted, each band relative to its mean. Returns ((H, W, B), records)."""
+    from .images import read_image
+
+    p = Path(spec).expanduser()
+    try:
+        cube = read_cube(p, "flat field")
+        data, recs, where = cube.data[..., order], cube.records("flat"), cube.path
+    except UserError as e:
+        if "holds one band" not in str(e) and "neither an ENVI" not in str(e):
+            raise
+        img = read_image(p, "--flat image")
+        if img.data.ndim != 2:
+            raise UserError(f"{img.path}: the --flat image must have one channel, it has shape {img.data.shape}") from None
+        data, recs, where = np.repeat(img.data.astype(np.float64)[..., None], shape[2], axis=-1), \
+            [file_record(img.path, "flat")], img.path
+    if data.shape != shape:
+        raise UserError(f"{where}: the --flat field has shape {data.shape}; expected the cube's {shape} (or an "
+                        f"image of {shape[0]} x {shape[1]})")
+    f = data - d_ref
+    low = ~(f > 0)
+    if low.any():
+        r, c, b = np.argwhere(low)[0]
+        raise UserError(f"{where}: the --flat field is at or below the dark level at {int(low.sum())} samples, the "
+                        f"first at row {r}, column {c}, band {b}; a flat field must be positive everywhere")
+    return f / f.mean(axis=(0, 1)), recs
 
 
 def _need_angles(n):
@@ -328,7 +405,8 @@ def cli_main(args) -> int:
     s = import_spectral(args.cubes, args.out, wavelengths=args.wavelengths, white=args.white, dark=args.dark,
                         white_reflectance=args.white_reflectance, polarizer=args.polarizer, angles=args.angles,
                         saturation=args.saturation, band_fwhm=args.band_fwhm, film_ior=args.film_ior,
-                        substrate_ior=args.substrate_ior, pixel_size=args.pixel_size)
+                        substrate_ior=args.substrate_ior, pixel_size=args.pixel_size, flat=args.flat,
+                        polarizer_extinction=args.polarizer_extinction, polarizer_offset=args.polarizer_offset)
     h, w = s["shape"]
     print(f"wrote {s['path']} ({w}x{h}, {s['bands']} bands, polarizer {args.polarizer}; {s['valid_pixels']} valid "
           f"pixels, {s['saturated_pixels']} saturated; units {s['units']})")
