@@ -166,6 +166,7 @@ class SceneSpec:
 
     def to_dict(self) -> dict:
         """The resolved spec dictionary (loads back to an equal spec)."""
+        from thinfilm.bsdf.materials import Constant
         from thinfilm.core.film import index_to_json
 
         sub = self.film.substrate
@@ -189,7 +190,8 @@ class SceneSpec:
             "seed": self.seed,
             "shape": {"kind": self.shape.kind, **copy.deepcopy(self.shape.params)},
             "film": {**film, "thickness": dict(self.thickness)},
-            "substrate": {"ior": float(sub.n), "k": float(sub.k)},
+            "substrate": ({"ior": float(sub.n), "k": float(sub.k)} if isinstance(sub, Constant)
+                          else {"ior": ior(sub), "k": 0.0}),
             "rig": rig,
             "noise": self.noise.as_dict(),
         }
@@ -352,13 +354,15 @@ def load_spec(spec_or_preset, overrides=(), resolution=None, seed=None) -> Scene
 
 
 def _warn_indices(spec: SceneSpec) -> None:
+    from thinfilm.core.film import REFERENCE_WAVELENGTH_NM
+
     n_film = spec.film.effective_index()
     n_sub = spec.film.effective_substrate_index()
     if n_film >= n_sub:
         warnings.warn(f"film index {n_film:g} >= substrate index {n_sub:g}; the paper's methods assume "
                       f"n_film < n_substrate (the default methods handle both)", ThinfilmWarning, stacklevel=3)
-    k_sub = float(spec.film.substrate.k)
-    if k_sub > 0:
+    if spec.film.absorbing_substrate:
+        k_sub = float(spec.film.substrate_n_k(REFERENCE_WAVELENGTH_NM)[1])  # at 550 nm, as n_sub
         warnings.warn(f"substrate k = {k_sub:g} > 0 (absorbing); spectral_s = S0 + sqrt(S1² + S2²) "
                       f"then holds max(R_s, R_p), not R_s", ThinfilmWarning, stacklevel=3)
 
