@@ -51,7 +51,7 @@ def test_a_bk7_substrate_renders_as_tmm_with_the_sellmeier_index(tmp_path, rende
 def test_a_database_substrate_is_recorded_with_its_page(render_variant_module):
     from thinfilm.core.errors import ThinfilmWarning
 
-    with pytest.warns(ThinfilmWarning, match=r"substrate k = 3\.\d+ > 0 \(absorbing\)"):
+    with pytest.warns(ThinfilmWarning, match=r"substrate k up to \d+(\.\d+)? > 0 \(absorbing\)"):
         spec = small_spec("hemisphere", 8, extra=("substrate.ior=main/Ag/Johnson",))
     meta = spec.film.to_meta()
     assert meta["substrate_ior"] == "main/Ag/Johnson"
