@@ -73,9 +73,10 @@ def main(argv=None):
         mask = object_mask(ds.spectral_s)
         spectra = ds.spectral_s[mask].astype(np.float64)
         pk = find_peaks(spectra, ds.wavelengths_nm)
-        theta = sm.angle_from_peak(pk.value, ds.meta["substrate_ior"])
+        n3 = ds.film().effective_substrate_index()  # a number also for a named substrate
+        theta = sm.angle_from_peak(pk.value, n3)
         t0 = time.perf_counter()
-        kobayashi_search(spectra, theta, pk.wavelength_nm, ds.meta["substrate_ior"], ds.wavelengths_nm)
+        kobayashi_search(spectra, theta, pk.wavelength_nm, n3, ds.wavelengths_nm)
         t_search = time.perf_counter() - t0
         print(f"paper's full (n2, m) search alone, {int(np.isfinite(theta).sum())} pixels: {t_search:.2f} s")
 

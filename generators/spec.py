@@ -166,6 +166,7 @@ class SceneSpec:
 
     def to_dict(self) -> dict:
         """The resolved spec dictionary (loads back to an equal spec)."""
+        from thinfilm.bsdf.materials import Constant
         from thinfilm.core.film import index_to_json
 
         sub = self.film.substrate
@@ -189,7 +190,8 @@ class SceneSpec:
             "seed": self.seed,
             "shape": {"kind": self.shape.kind, **copy.deepcopy(self.shape.params)},
             "film": {**film, "thickness": dict(self.thickness)},
-            "substrate": {"ior": float(sub.n), "k": float(sub.k)},
+            "substrate": ({"ior": float(sub.n), "k": float(sub.k)} if isinstance(sub, Constant)
+                          else {"ior": ior(sub), "k": 0.0}),
             "rig": rig,
             "noise": self.noise.as_dict(),
         }
@@ -315,8 +317,9 @@ def load_spec(spec_or_preset, overrides=(), resolution=None, seed=None) -> Scene
     -----
     A film index >= the substrate index gives a :class:`~thinfilm.core.errors.ThinfilmWarning`: the paper's
     methods assume n_film < n_substrate (constructive-interference peaks; the default methods
-    handle both). An absorbing
-    substrate (``substrate.k > 0``) gives one too: ``spectral_s`` (S0 + sqrt(S1² + S2²)) is
+    handle both); for a dispersive index, the indices at 550 nm. An absorbing substrate
+    (``substrate.k > 0``, or a named material absorbing anywhere in 300-1000 nm, such as a
+    metal) gives one too: ``spectral_s`` (S0 + sqrt(S1² + S2²)) is
     then max(R_s, R_p), which is R_s only on a dielectric substrate.
     """
     if isinstance(spec_or_preset, dict):
@@ -352,14 +355,22 @@ def load_spec(spec_or_preset, overrides=(), resolution=None, seed=None) -> Scene
 
 
 def _warn_indices(spec: SceneSpec) -> None:
+    import numpy as np
+
     n_film = spec.film.effective_index()
     n_sub = spec.film.effective_substrate_index()
     if n_film >= n_sub:
         warnings.warn(f"film index {n_film:g} >= substrate index {n_sub:g}; the paper's methods assume "
                       f"n_film < n_substrate (the default methods handle both)", ThinfilmWarning, stacklevel=3)
-    k_sub = float(spec.film.substrate.k)
-    if k_sub > 0:
-        warnings.warn(f"substrate k = {k_sub:g} > 0 (absorbing); spectral_s = S0 + sqrt(S1² + S2²) "
+    if spec.film.absorbing_substrate:
+        sub = spec.film.substrate
+        if hasattr(sub, "k"):  # a number or n+ki
+            what = f"substrate k = {float(sub.k):g}"
+        else:  # a material: its largest k where absorbing_substrate looks (300-1000 nm, within its table)
+            lo, hi = getattr(sub, "range_nm", (300.0, 1000.0))
+            lam = np.linspace(max(lo, 300.0), min(hi, 1000.0), 141)
+            what = f"substrate k up to {float(np.max(spec.film.substrate_n_k(lam)[1])):g}"
+        warnings.warn(f"{what} > 0 (absorbing); spectral_s = S0 + sqrt(S1² + S2²) "
                       f"then holds max(R_s, R_p), not R_s", ThinfilmWarning, stacklevel=3)
 
 

@@ -89,7 +89,9 @@ _FILM_KEYS = {"ior": ("ior", 1.37), "roughness": ("roughness", 0.0)}
 #: with it)
 _STACK_KEYS = {"layers": ("layers", _REQUIRED), "roughness": ("roughness", 0.0)}
 _LAYER_KEYS = {"ior": ("ior", _REQUIRED), "thickness_nm": ("layer_thickness", _REQUIRED)}
-_SUBSTRATE_KEYS = {"ior": ("index", 1.6), "k": ("extinction", 0.0)}
+#: ``ior`` takes what ``film.ior`` takes (a number, ``n+ki``, a material name); ``k`` adds an
+#: extinction to a plain number only (a text index carries its own k)
+_SUBSTRATE_KEYS = {"ior": ("ior", 1.6), "k": ("extinction", 0.0)}
 _RIG_KEYS = {
     "resolution": ("resolution", 256),
     "wavelengths_nm": ("wavelengths", {"start": 400.0, "stop": 720.0, "step": 4.0}),
@@ -511,6 +513,9 @@ def resolve(raw: dict, c: "Checker") -> dict:
                                        {"profile": profile})
 
     out["substrate"] = c.table("substrate", raw.get("substrate", {}), _SUBSTRATE_KEYS, {})
+    if isinstance(out["substrate"]["ior"], str) and out["substrate"]["k"]:
+        raise UserError(f"{c.source}: 'substrate.k' adds an extinction to a numeric 'substrate.ior' only; "
+                        f"{out['substrate']['ior']!r} carries its own k (give the index as 'n+ki' instead)")
     out["rig"] = c.table("rig", raw.get("rig", {}), _RIG_KEYS, {})
     out["noise"] = c.table("noise", raw.get("noise", {}), _NOISE_KEYS, {})
     _check_rig_colour(out["rig"], c)
@@ -528,6 +533,7 @@ def _check_material_ranges(out: dict, c) -> None:
     film = out["film"]
     named = [("film.ior", film.get("ior"))] + [(f"film.layers[{i}].ior", layer["ior"])
                                                for i, layer in enumerate(film.get("layers", []))]
+    named.append(("substrate.ior", out["substrate"]["ior"]))
     named = [(where, value) for where, value in named if isinstance(value, str)]
     if not named:
         return

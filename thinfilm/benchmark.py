@@ -257,7 +257,10 @@ def _ground_truth_estimate(dataset: Path, out: Path) -> None:
 
     ds = read_dataset(dataset, need=("ground_truth",))
     gt = ds.ground_truth
-    est = Estimate(gt["normal"], gt["thickness"], gt["mask"], ds.meta["film_ior"], ds.meta["substrate_ior"],
+    sub = ds.meta["substrate_ior"]
+    if isinstance(sub, str):  # a material name: the estimate holds a number, the evaluation the dataset's table
+        sub = ds.film().effective_substrate_index()
+    est = Estimate(gt["normal"], gt["thickness"], gt["mask"], ds.meta["film_ior"], sub,
                    info={"method": "ground_truth", "timings_s": {}})
     with atomic_output_dir(out, command="reconstruct", inputs=[dataset]) as tmp:
         write_estimate(tmp, est)
