@@ -174,7 +174,7 @@ def demosaic(raw, pattern, method: str = DEFAULT_METHOD, mask=None, exclude=None
     True
     >>> S0 = 1 + 0.1 * xx + 0.2 * yy                 # a linear intensity, uniformly polarized
     >>> images = {a: np.stack([0.5 * S0 * (1 + 0.3 * np.cos(np.radians(2 * a) - 1))] * 3, -1) for a in p.angles}
-    >>> out = demosaic(mosaic_from_images(images, p), p)                  # residual: exact everywhere
+    >>> out = demosaic(mosaic_from_images(images, p), p, "residual")      # residual: exact everywhere
     >>> bool(np.allclose(out[45], images[45]))
     True
     """
