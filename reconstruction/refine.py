@@ -510,6 +510,17 @@ def refine_estimate(dataset, estimate, prior: str = "default", iterations: int =
     sig_d = np.sqrt(var_d)
     valid = np.zeros(shape, dtype=bool)
     valid[mask] = np.isfinite(chi2) & (chi2 < max_chi2) & np.isfinite(sig_d)
+    kept = int(valid.sum())
+    if kept == 0:
+        from thinfilm.core.errors import NoResultError
+
+        raise NoResultError(f"refine: the model explains none of the estimate's {n} pixels (every fit ends above "
+                            f"chi2 {max_chi2:g} per value): the captures are not those of this film and rig, or the "
+                            f"start is too far off")
+    if kept < 0.5 * n:
+        warnings.warn(f"refine: only {kept} of the estimate's {n} pixels fit within chi2 {max_chi2:g} per value; "
+                      f"the others are invalid (the start may be far off, or the model lacks what the captures hold: "
+                      f"inter-reflections, a rough film, a stack)", ThinfilmWarning, stacklevel=2)
     out_d = np.full(shape, np.nan)
     out_d[mask] = d
     sn = np.full(shape, np.nan)

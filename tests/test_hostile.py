@@ -260,6 +260,10 @@ def ev(ds="ds", est="est", out="out"):
     return lambda c: ["evaluate", c.p(ds), c.p(est), "--out", c.p(out)]
 
 
+def ref(*extra, ds="ds", est="est", out="out"):
+    return lambda c: ["refine", c.p(ds), c.p(est), *extra, "--out", c.p(out)]
+
+
 def _images(c):
     from PIL import Image
 
@@ -578,6 +582,12 @@ CASES = [
     Case("evaluate/out-user-folder-with-metrics-json", ev(), "not a thinfilm output",
          setup=_dir_with("out", {"metrics.json": "{}", "paper.tex": "draft"})),
     Case("evaluate/estimate-missing", ev(est="none"), "estimate folder not found"),
+    Case("refine/estimate-missing", ref(est="none"), "estimate folder not found"),
+    Case("refine/dataset-missing", ref(ds="nowhere"), "dataset folder not found"),
+    Case("refine/out-is-the-estimate", ref(out="est"), "is the input"),
+    Case("refine/out-is-the-dataset", ref(out="ds"), "is the input"),
+    Case("refine/iterations-zero", ref("--iterations", "0"), "--iterations"),
+    Case("refine/prior-unknown", ref("--prior", "gaussian"), "--prior"),
     Case("evaluate/nan-normal", ev(), "channel 'normal' is NaN",
          setup=_exr_edit("est/estimate.exr", lambda ch: _set(ch, ["normal.X"], np.nan, _valid))),
     Case("evaluate/negative-thickness", ev(), "channel 'thickness' is negative",
@@ -777,7 +787,7 @@ def test_hostile_input(case, base, tmp_path, monkeypatch, capfd):
     assert len(lines) == 1, (case.id, err)
     assert lines[0].startswith(("thinfilm: error:", "thinfilm generate: error:", "thinfilm render: error:",
                                 "thinfilm reconstruct: error:", "thinfilm evaluate: error:",
-                                "thinfilm benchmark: error:", "thinfilm methods: error:",
+                                "thinfilm benchmark: error:", "thinfilm methods: error:", "thinfilm refine: error:",
                                 "thinfilm reconstruct rgb: error:", "thinfilm reconstruct spectral: error:",
                                 "thinfilm import polarization: error:", "thinfilm fit-spectrum: error:")), err
     assert case.expect in lines[0], (case.id, lines[0])

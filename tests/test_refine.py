@@ -118,3 +118,21 @@ def test_the_refine_command_writes_a_new_estimate_and_leaves_its_inputs(hemisphe
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "40x40" in err[0] and "16x16" in err[0]
     assert not (tmp_path / "x").exists()
+
+
+def test_refine_says_so_when_the_model_explains_nothing(hemisphere, tmp_path, capsys):
+    """An estimate refined on the captures of another film (here the hemisphere's captures
+    scaled tenfold, which no film reflects) ends with one line and exit 1, nothing written."""
+    import shutil
+
+    from thinfilm.core.io import read_exr, write_exr
+
+    ds = tmp_path / "ds"
+    shutil.copytree(hemisphere / "ds", ds)
+    ch = read_exr(ds / "polarized_rgb.exr")
+    write_exr(ds / "polarized_rgb.exr", {k: v * 10.0 for k, v in ch.items()})
+    capsys.readouterr()
+    assert main(["refine", str(ds), str(hemisphere / "rgb"), "--out", str(tmp_path / "r"), "--iterations", "2"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "explains none" in err[0]
+    assert not (tmp_path / "r").exists()
