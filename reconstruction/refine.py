@@ -234,7 +234,6 @@ class _Priors:
         their gradient ``Jᵀ r`` at ``(z, d)``."""
         import scipy.sparse as sp
 
-        n = d.size
         rc, rd, rx, ry = self.residuals(z, d)
         Cw = (sp.diags(self.curl_weights(z)) @ self.C).tocsr()
         we = self.edge_weights(z)
